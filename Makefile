@@ -1,0 +1,27 @@
+# The two commands of the README: `make demo` and `make test`. Both set themselves up first.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+MFMAP := $(VENV)/bin/mfmap
+WORK ?= work
+
+.PHONY: setup demo test lint typecheck pytest config
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	@bash scripts/demo.sh
+
+test: setup lint typecheck pytest
+
+lint:
+	$(VENV)/bin/ruff check mfmap pipelines tests
+
+typecheck:
+	$(VENV)/bin/mypy
+
+pytest:
+	$(PY) -m pytest -q
+
+config: setup
+	$(MFMAP) config > sample_configs/default.yaml

@@ -1,0 +1,313 @@
+"""The `mfmap` command line: parse, load config, call one library function, print its result.
+
+Heavy libraries (open3d, gtsam) are imported inside the commands so `mfmap --help` is instant.
+Every MfmapError becomes one red line on stderr and exit code 1 (tracebacks only with --debug).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from enum import Enum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+from rich.console import Console
+
+from mfmap import __version__
+from mfmap.errors import MfmapError
+
+if TYPE_CHECKING:
+    from mfmap.config import MfmapConfig
+    from mfmap.progress import StageProgress
+
+app = typer.Typer(
+    name="mfmap",
+    help="Multi-floor building maps from robot logs (MCAP, ROS 1 bag, ROS 2 bag).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+console = Console()
+err_console = Console(stderr=True)
+
+# Exit codes: 1 user error (bad input, bad config), 3 a --fail-above threshold was exceeded.
+EXIT_THRESHOLD = 3
+
+_state: dict[str, bool] = {"debug": False}
+
+
+class LogFormat(str, Enum):
+    mcap = "mcap"
+    ros1 = "ros1"
+    ros2 = "ros2"
+
+
+class Alignment(str, Enum):
+    none = "none"
+    se3 = "se3"
+    yaw = "4dof"
+
+
+def _version(value: bool) -> None:
+    if value:
+        console.print(f"mfmap {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_version, is_eager=True, help="Show the version."),
+    ] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks for errors.")] = False,
+) -> None:
+    _state["debug"] = debug
+
+
+class RichProgress:
+    """Progress bars on stderr; silent when stderr is not a terminal."""
+
+    def __init__(self) -> None:
+        self.enabled = err_console.is_terminal
+
+    @contextmanager
+    def stage(self, name: str, total: float | None = None) -> Iterator[StageProgress]:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        with Progress(
+            TextColumn("{task.description:<10}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=err_console,
+            disable=not self.enabled,
+            transient=False,
+        ) as bar:
+            task = bar.add_task(name, total=total)
+
+            class _Stage:
+                def advance(self, n: float = 1) -> None:
+                    bar.advance(task, n)
+
+                def set_total(self, total: float | None) -> None:
+                    bar.update(task, total=total)
+
+            yield _Stage()
+
+
+def _parse_topics(items: list[str] | None) -> dict[str, str]:
+    from mfmap.types import Role
+
+    out: dict[str, str] = {}
+    for item in items or []:
+        role, sep, topic = item.partition("=")
+        if not sep or not topic:
+            raise MfmapError(f"--topic expects ROLE=TOPIC, got '{item}'")
+        if role not in {r.value for r in Role}:
+            roles = ", ".join(r.value for r in Role)
+            raise MfmapError(f"--topic: unknown role '{role}' (roles: {roles})")
+        out[role] = topic
+    return out
+
+
+def _load(config: Path | None, topics: list[str] | None = None) -> MfmapConfig:
+    from mfmap.config import load_config
+
+    overrides: dict[str, Any] = {}
+    parsed = _parse_topics(topics)
+    if parsed:
+        overrides["ingest"] = {"topics": parsed}
+    return load_config(config, overrides)
+
+
+ConfigOpt = Annotated[
+    Path | None, typer.Option("--config", "-c", help="YAML configuration file.")
+]
+TopicOpt = Annotated[
+    list[str] | None,
+    typer.Option("--topic", "-t", help="Override a role's topic: ROLE=TOPIC (repeatable)."),
+]
+
+
+@app.command()
+def info(
+    log: Annotated[Path, typer.Argument(help="MCAP file, ROS 1 bag or ROS 2 bag folder.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    topic: TopicOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Topics, message types, roles, counts, rates and duration of a log."""
+    from mfmap.ingest import describe_log
+    from mfmap.ingest.report import render_info
+
+    cfg = _load(config, topic)
+    summary = describe_log(log, cfg.ingest)
+    if as_json:
+        console.print_json(json.dumps(summary.to_json()))
+    else:
+        console.print(render_info(summary))
+    for warning in summary.warnings:
+        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+@app.command("config")
+def config_cmd(
+    config: ConfigOpt = None,
+) -> None:
+    """Print the configuration as YAML (the defaults, or a file's resolved values)."""
+    from mfmap.config import dump_config
+
+    sys.stdout.write(dump_config(_load(config)))
+
+
+@app.command()
+def simulate(
+    scenario: Annotated[str, typer.Argument(help="Scenario name (see --list).")] = "two-floor",
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("sim"),
+    fmt: Annotated[LogFormat, typer.Option("--format", help="Log format.")] = LogFormat.mcap,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    plot: Annotated[bool, typer.Option("--plot", help="Also write floor-plan and pressure PNGs.")] = False,
+    duration_scale: Annotated[
+        float, typer.Option("--duration-scale", help="Repeat the route to lengthen the log.")
+    ] = 1.0,
+    list_scenarios: Annotated[bool, typer.Option("--list", help="List scenarios and exit.")] = False,
+) -> None:
+    """Write a synthetic building log with its ground truth."""
+    from mfmap.sim import SCENARIOS, simulate as run_simulation
+    from mfmap.sim.report import render_simulation
+
+    if list_scenarios:
+        for name, spec in SCENARIOS.items():
+            console.print(f"{name:<22} {spec.description}")
+        return
+    result = run_simulation(
+        scenario,
+        out,
+        fmt=fmt.value,
+        seed=seed,
+        plot=plot,
+        duration_scale=duration_scale,
+        progress=RichProgress(),
+    )
+    console.print(render_simulation(result))
+
+
+@app.command()
+def floors(
+    log: Annotated[Path, typer.Argument(help="Log, or a CSV of t,pressure.")],
+    plot: Annotated[Path | None, typer.Option("--plot", help="Write a PNG of the trace.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print floors.json to stdout.")] = False,
+    topic: TopicOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Floor segmentation from the barometer: floors, transitions, revisits."""
+    from mfmap.floors import segment_path
+    from mfmap.floors.io import segmentation_to_json
+    from mfmap.floors.report import render_floors
+
+    cfg = _load(config, topic)
+    seg = segment_path(log, cfg)
+    if plot is not None:
+        from mfmap.floors.plot import plot_segmentation
+
+        plot_segmentation(seg, plot, title=log.name)
+    if as_json:
+        sys.stdout.write(json.dumps(segmentation_to_json(seg), indent=2) + "\n")
+    else:
+        console.print(render_floors(seg))
+    for warning in seg.warnings:
+        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+@app.command()
+def build(
+    log: Annotated[Path, typer.Argument(help="MCAP file, ROS 1 bag or ROS 2 bag folder.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing output folder.")] = False,
+    topic: TopicOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """The whole pipeline: floors, per-floor mapping, building graph, exports."""
+    from mfmap.pipeline import build as run_build
+    from mfmap.pipeline import render_summary
+
+    cfg = _load(config, topic)
+    result = run_build(log, out, cfg, force=force, progress=RichProgress())
+    console.print(render_summary(result))
+    for warning in result.warnings:
+        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+@app.command("eval")
+def eval_cmd(
+    out: Annotated[Path, typer.Argument(help="A build's output folder.")],
+    points: Annotated[Path | None, typer.Option("--points", help="Checkpoints CSV.")] = None,
+    cloud: Annotated[Path | None, typer.Option("--cloud", help="Reference cloud (PLY/PCD).")] = None,
+    trajectory: Annotated[
+        Path | None, typer.Option("--trajectory", help="Ground-truth TUM trajectory.")
+    ] = None,
+    floors_gt: Annotated[
+        Path | None, typer.Option("--floors", help="Ground-truth floors JSON.")
+    ] = None,
+    align: Annotated[
+        Alignment, typer.Option("--align", help="Extra aligned trajectory errors.")
+    ] = Alignment.none,
+    json_out: Annotated[
+        Path | None, typer.Option("--json", help="Where to write eval.json (default OUT/eval.json).")
+    ] = None,
+    fail_above: Annotated[
+        list[str] | None,
+        typer.Option("--fail-above", help="METRIC=VALUE: exit 3 when the metric is above VALUE."),
+    ] = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Score a build against ground truth: points, cloud, trajectory, floors."""
+    from mfmap.eval import evaluate, parse_thresholds
+    from mfmap.eval.report import render_eval
+
+    cfg = _load(config)
+    thresholds = parse_thresholds(fail_above or [])
+    result = evaluate(
+        out,
+        points=points,
+        cloud=cloud,
+        trajectory=trajectory,
+        floors=floors_gt,
+        align=align.value,
+        config=cfg.eval,
+    )
+    target = json_out if json_out is not None else out / "eval.json"
+    result.write_json(target)
+    console.print(render_eval(result))
+    console.print(f"eval.json: {target}")
+    failures = result.check_thresholds(thresholds)
+    for failure in failures:
+        err_console.print(f"[red]regression:[/red] {failure}")
+    if failures:
+        raise typer.Exit(EXIT_THRESHOLD)
+
+
+def main() -> None:
+    try:
+        app()
+    except MfmapError as err:
+        if _state["debug"]:
+            raise
+        err_console.print(f"[red]mfmap: error:[/red] {err}", highlight=False, soft_wrap=True)
+        sys.exit(err.exit_code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""The configuration: one pydantic model per stage, combined into MfmapConfig.
+
+Every model forbids unknown keys, so a typo in a YAML file is an error that names the key and the
+file instead of a setting silently ignored.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from mfmap.errors import ConfigError
+from mfmap.eval.config import EvalConfig
+from mfmap.export.config import ExportConfig
+from mfmap.floors.config import FloorsConfig
+from mfmap.graph.config import GraphConfig
+from mfmap.ingest.config import IngestConfig
+from mfmap.mapping.config import MappingConfig
+
+__all__ = [
+    "EvalConfig",
+    "ExportConfig",
+    "FloorsConfig",
+    "GraphConfig",
+    "IngestConfig",
+    "MappingConfig",
+    "MfmapConfig",
+    "dump_config",
+    "load_config",
+]
+
+
+class MfmapConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    ingest: IngestConfig = Field(default_factory=IngestConfig)
+    floors: FloorsConfig = Field(default_factory=FloorsConfig)
+    mapping: MappingConfig = Field(default_factory=MappingConfig)
+    graph: GraphConfig = Field(default_factory=GraphConfig)
+    export: ExportConfig = Field(default_factory=ExportConfig)
+    eval: EvalConfig = Field(default_factory=EvalConfig)
+
+
+def _describe(err: ValidationError) -> str:
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"])
+    if first["type"] == "extra_forbidden":
+        return f"unknown key '{where}'"
+    return f"invalid value for '{where}': {first['msg']}"
+
+
+def config_from_dict(data: dict[str, Any], source: Path | str = "<config>") -> MfmapConfig:
+    try:
+        return MfmapConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_describe(err), source) from err
+
+
+def load_config(path: Path | None, overrides: dict[str, Any] | None = None) -> MfmapConfig:
+    """Defaults, then the YAML file (if any), then overrides (nested dict)."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        if not path.is_file():
+            raise ConfigError("config file not found", path)
+        try:
+            loaded = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise ConfigError(f"not valid YAML ({err.__class__.__name__})", path) from err
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError("expected a mapping of stage names at the top level", path)
+        data = loaded
+    if overrides:
+        data = _merge(data, overrides)
+    return config_from_dict(data, path if path is not None else "<config>")
+
+
+def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def dump_config(config: MfmapConfig) -> str:
+    """YAML text of a config; `mfmap config` prints this for the defaults."""
+    header = "# mfmap configuration (mfmap config prints the defaults)\n"
+    return header + yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,43 @@
+"""Typed errors. The CLI turns every MfmapError into one line and a non-zero exit."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class MfmapError(Exception):
+    """Base of every error a user can cause (bad input, bad config); never a bug."""
+
+    exit_code = 1
+
+    def __init__(self, message: str, path: Path | str | None = None) -> None:
+        self.path = Path(path) if path is not None else None
+        super().__init__(f"{path}: {message}" if path is not None else message)
+
+
+class ConfigError(MfmapError):
+    """Invalid configuration file or value."""
+
+
+class LogError(MfmapError):
+    """A log that cannot be opened or read."""
+
+
+class DecodeError(LogError):
+    """A message that cannot be decoded (bad layout, size mismatch)."""
+
+
+class MissingDataError(MfmapError):
+    """A log lacks what a stage needs (no lidar, no barometer)."""
+
+
+class OutputError(MfmapError):
+    """An output folder that cannot be written or read (exists, interrupted build)."""
+
+
+class GroundTruthError(MfmapError):
+    """A ground-truth file that is malformed or does not match the build."""
+
+
+class RegressionFailure(MfmapError):
+    """A regression run that found a metric worse than its tolerance."""
