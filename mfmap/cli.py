@@ -149,10 +149,10 @@ def info(
     config: ConfigOpt = None,
 ) -> None:
     """Topics, message types, roles, counts, rates and duration of a log."""
+    cfg = _load(config, topic)
     from mfmap.ingest import describe_log
     from mfmap.ingest.report import render_info
 
-    cfg = _load(config, topic)
     summary = describe_log(log, cfg.ingest)
     if as_json:
         console.print_json(json.dumps(summary.to_json()))
@@ -185,7 +185,8 @@ def simulate(
     list_scenarios: Annotated[bool, typer.Option("--list", help="List scenarios and exit.")] = False,
 ) -> None:
     """Write a synthetic building log with its ground truth."""
-    from mfmap.sim import SCENARIOS, simulate as run_simulation
+    from mfmap.sim import SCENARIOS
+    from mfmap.sim import simulate as run_simulation
     from mfmap.sim.report import render_simulation
 
     if list_scenarios:

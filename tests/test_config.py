@@ -38,7 +38,7 @@ def test_unknown_stage_and_bad_value(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="unknown key 'mappin'"):
         load_config(path)
     path.write_text("floors:\n  temperature_k: warm\n")
-    with pytest.raises(ConfigError, match="invalid value for 'floors.temperature_k'"):
+    with pytest.raises(ConfigError, match=r"invalid value for 'floors\.temperature_k'"):
         load_config(path)
 
 
