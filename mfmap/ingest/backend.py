@@ -1,0 +1,65 @@
+"""What every log reader (MCAP, rosbags) provides to LogSource: topics and raw records."""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Iterator
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+
+@dataclass
+class RawTopic:
+    """A topic as the reader found it, before roles are assigned."""
+
+    name: str
+    msgtype: str
+    count: int
+    first_ns: int | None  # log time of the first message
+    last_ns: int | None
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """One undecoded message; `payload` is whatever the backend needs to deserialise it."""
+
+    topic: str
+    log_time_ns: int
+    payload: Any
+
+
+class Backend(Protocol):
+    format: str
+    topics: dict[str, RawTopic]
+    warnings: list[str]
+
+    def iter_raw(
+        self, topics: Collection[str], start_ns: int | None, end_ns: int | None
+    ) -> Iterator[RawMessage]:
+        """Messages of `topics` with start_ns <= log time <= end_ns, in log-time order."""
+        ...
+
+    def deserialize(self, message: RawMessage) -> Any:
+        """The decoded message object (attribute access like rosbags' message classes)."""
+        ...
+
+    def raw_size(self, message: RawMessage) -> int:
+        """Bytes of serialised data."""
+        ...
+
+    def serialized(self, message: RawMessage) -> tuple[str, Any]:
+        """(message encoding "cdr" | "ros1" | other, serialised bytes)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def normalise_msgtype(name: str) -> str:
+    """'sensor_msgs/PointCloud2' (ROS 1) -> 'sensor_msgs/msg/PointCloud2'; others unchanged.
+
+    Names that are already three-part ('pkg/msg/Name', 'pkg/srv/Name_Event') or not ROS types
+    at all are returned as they are.
+    """
+    parts = name.split("/")
+    if len(parts) == 2 and all(parts):
+        return f"{parts[0]}/msg/{parts[1]}"
+    return name

@@ -1,0 +1,480 @@
+"""Message decoders: deserialised ROS messages -> mfmap types.
+
+The decoders take the attribute-style messages that rosbags' deserialisers produce (ROS 1 and
+ROS 2 alike: `header.stamp.sec`, `header.stamp.nanosec`) and return numpy-backed values. A
+PointCloud2 is decoded with ONE structured numpy dtype laid over the raw bytes, whatever the field
+order, padding, byte order or row padding, so no Python code runs per point.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mfmap.errors import DecodeError
+from mfmap.types import Cloud, Scan2D
+
+# sensor_msgs/PointField datatype -> numpy type character code (byte order added later).
+POINTFIELD_DTYPES: dict[int, str] = {
+    1: "i1",
+    2: "u1",
+    3: "i2",
+    4: "u2",
+    5: "i4",
+    6: "u4",
+    7: "f4",
+    8: "f8",
+}
+
+# A single scan larger than this is a corrupt header, not a lidar (a 128x2048 Ouster scan with
+# every field is about 25 MB).
+DEFAULT_MAX_CLOUD_BYTES = 1 << 30
+
+_TIME_FIELDS = ("t", "time", "timestamp")
+
+
+def stamp_ns_of(msg: Any, log_time_ns: int) -> int:
+    """Header stamp in int ns; the log time when the message has no header or a zero stamp."""
+    header = getattr(msg, "header", None)
+    if header is None:
+        return int(log_time_ns)
+    stamp = header.stamp
+    ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return ns if ns != 0 else int(log_time_ns)
+
+
+@dataclass(frozen=True)
+class CloudLayout:
+    """The parts of a PointCloud2 header the decoder needs, validated."""
+
+    dtype: np.dtype[Any]  # the wanted fields at their offsets, itemsize point_step
+    span: np.dtype[Any]  # the same fields packed from the first wanted byte to the last
+    span_offset: int  # byte offset of the span inside a point
+    height: int
+    width: int
+    point_step: int
+    row_step: int
+    time_field: str | None
+    has_intensity: bool
+    has_ring: bool
+
+
+def cloud_layout(
+    fields: list[Any],
+    height: int,
+    width: int,
+    point_step: int,
+    row_step: int,
+    is_bigendian: bool,
+    data_len: int,
+    where: str,
+    max_bytes: int = DEFAULT_MAX_CLOUD_BYTES,
+) -> CloudLayout:
+    """Check a PointCloud2's sizes against its data and build the structured dtype.
+
+    `where` names the file and topic for the error message.
+    """
+    order = ">" if is_bigendian else "<"
+    if height < 0 or width < 0 or point_step < 0 or row_step < 0:
+        raise DecodeError("PointCloud2 with negative sizes", where)
+    claimed = height * width * point_step
+    if claimed > max_bytes or row_step * height > max_bytes:
+        raise DecodeError(
+            f"PointCloud2 claims {max(claimed, row_step * height) / 1e9:.1f} GB "
+            f"({height}x{width} points of {point_step} bytes), more than the "
+            f"{max_bytes / 1e9:.1f} GB limit: corrupt header",
+            where,
+        )
+    if height * width > 0 and row_step < width * point_step:
+        raise DecodeError(
+            f"PointCloud2 row_step {row_step} is smaller than width*point_step "
+            f"{width}*{point_step}",
+            where,
+        )
+    # Exactly row_step*height bytes, or the last row's padding left off: anything else means
+    # the header and the data disagree.
+    if height * width > 0 and data_len not in (
+        row_step * height,
+        row_step * (height - 1) + width * point_step,
+    ):
+        raise DecodeError(
+            f"PointCloud2 data is {data_len} bytes but width*height*point_step = "
+            f"{width}*{height}*{point_step} (row_step {row_step}) needs {row_step * height}",
+            where,
+        )
+    by_name: dict[str, Any] = {}
+    for f in fields:
+        by_name.setdefault(str(f.name), f)
+    missing = [n for n in ("x", "y", "z") if n not in by_name]
+    if missing:
+        raise DecodeError(f"PointCloud2 has no field {'/'.join(missing)}", where)
+    names: list[str] = []
+    formats: list[str] = []
+    offsets: list[int] = []
+    wanted = ["x", "y", "z", "intensity", "ring", *_TIME_FIELDS]
+    for name in wanted:
+        f = by_name.get(name)
+        if f is None:
+            continue
+        code = POINTFIELD_DTYPES.get(int(f.datatype))
+        if code is None:
+            raise DecodeError(f"PointCloud2 field '{name}' has unknown datatype {f.datatype}", where)
+        size = int(code[1])
+        # A field with count > 1 is an array; the first element sits at the field's offset.
+        if int(f.offset) < 0 or int(f.offset) + size > point_step:
+            raise DecodeError(
+                f"PointCloud2 field '{name}' at offset {f.offset} does not fit in "
+                f"point_step {point_step}",
+                where,
+            )
+        names.append(name)
+        formats.append(order + code)
+        offsets.append(int(f.offset))
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": max(point_step, 1)}
+    )
+    time_field = next((n for n in _TIME_FIELDS if n in names), None)
+    return CloudLayout(
+        dtype=dtype,
+        span=_span_dtype(names, formats, offsets),
+        span_offset=min(offsets),
+        height=height,
+        width=width,
+        point_step=point_step,
+        row_step=row_step,
+        time_field=time_field,
+        has_intensity="intensity" in names,
+        has_ring="ring" in names,
+    )
+
+
+def _span_dtype(names: list[str], formats: list[str], offsets: list[int]) -> np.dtype[Any]:
+    """Packed record of the wanted fields; consecutive float32 x, y, z become one 'xyz' (3,)."""
+    lo = min(offsets)
+    hi = max(o + int(f[2:]) for o, f in zip(offsets, formats, strict=True))
+    fields = dict(zip(names, zip(formats, offsets, strict=True), strict=True))
+    (fx, ox), (fy, oy), (fz, oz) = fields.pop("x"), fields.pop("y"), fields.pop("z")
+    spec: dict[str, tuple[Any, int]]
+    if fx == fy == fz and fx[1:] == "f4" and oy == ox + 4 and oz == ox + 8:
+        spec = {"xyz": ((fx, (3,)), ox)}
+    else:
+        spec = {"x": (fx, ox), "y": (fy, oy), "z": (fz, oz)}
+    spec.update(fields)
+    return np.dtype(
+        {
+            "names": list(spec),
+            "formats": [f for f, _ in spec.values()],
+            "offsets": [o - lo for _, o in spec.values()],
+            "itemsize": hi - lo,
+        }
+    )
+
+
+def decode_pointcloud2(
+    msg: Any,
+    stamp_ns: int,
+    where: str = "",
+    max_bytes: int = DEFAULT_MAX_CLOUD_BYTES,
+    drop_zero: bool = True,
+) -> Cloud:
+    """sensor_msgs/PointCloud2 -> Cloud (sensor frame, non-finite points dropped).
+
+    `drop_zero` also drops points at exactly (0, 0, 0), which Ouster and other drivers send for
+    no-returns in organised clouds.
+    """
+    data = msg.data
+    buf = data if isinstance(data, (bytes, bytearray, memoryview)) else np.asarray(data)
+    data_len = len(buf) if not isinstance(buf, np.ndarray) else int(buf.nbytes)
+    layout = cloud_layout(
+        list(msg.fields),
+        int(msg.height),
+        int(msg.width),
+        int(msg.point_step),
+        int(msg.row_step),
+        bool(msg.is_bigendian),
+        data_len,
+        where,
+        max_bytes,
+    )
+    return decode_with_layout(layout, buf, stamp_ns, str(msg.header.frame_id), drop_zero)
+
+
+def decode_with_layout(
+    layout: CloudLayout, buf: Any, stamp_ns: int, frame_id: str, drop_zero: bool = True
+) -> Cloud:
+    """Decode the raw point bytes of a validated layout."""
+    h, w = layout.height, layout.width
+    n = h * w
+    if n == 0:
+        return Cloud(stamp_ns, frame_id, np.zeros((0, 3), np.float32))
+    # The wanted fields of every point are first packed into one contiguous record array (one
+    # strided pass over the message, which also drops any row padding); the validity test and
+    # the gather of kept points then run on that dense copy, which is faster than working on
+    # the sparse message bytes, and every output array is copied from it.
+    packed_bytes = np.dtype((np.void, layout.span.itemsize))
+    strided = np.ndarray(
+        shape=(h, w),
+        dtype=packed_bytes,
+        buffer=buf,
+        offset=layout.span_offset,
+        strides=(layout.row_step, layout.point_step),
+    )
+    recs = np.array(strided, order="C").reshape(n).view(layout.span)
+    names = layout.span.names or ()
+    if "xyz" in names:
+        packed = recs["xyz"]
+        x, y, z = packed[:, 0], packed[:, 1], packed[:, 2]
+    else:
+        x, y, z = recs["x"], recs["y"], recs["z"]
+    # One squared range per point, instead of reductions along the short axis of (N, 3):
+    # NaN fails both comparisons, inf fails the second, an exact (0, 0, 0) the first.
+    r2 = x * x
+    r2 += y * y
+    r2 += z * z
+    keep = (r2 < np.inf) & (r2 > 0) if drop_zero else np.isfinite(r2)
+    sel = recs
+    if not bool(keep.all()):
+        # Gathered as opaque bytes: np.take on a structured dtype copies field by field.
+        sel = np.take(recs.view(packed_bytes), np.flatnonzero(keep)).view(layout.span)
+    if "xyz" in names:
+        xyz = np.array(sel["xyz"], dtype=np.float32, order="C")
+    else:
+        xyz = np.empty((sel.shape[0], 3), np.float32)
+        xyz[:, 0], xyz[:, 1], xyz[:, 2] = sel["x"], sel["y"], sel["z"]
+    intensity = sel["intensity"].astype(np.float32) if layout.has_intensity else None
+    ring = sel["ring"].astype(np.uint16) if layout.has_ring else None
+    t_offset = None
+    if layout.time_field is not None:
+        t_offset = _time_offsets_ns(sel[layout.time_field], layout.time_field, stamp_ns)
+    return Cloud(
+        stamp_ns=stamp_ns,
+        frame_id=frame_id,
+        xyz=xyz,
+        intensity=intensity,
+        ring=ring,
+        t_offset_ns=t_offset,
+    )
+
+
+def _time_offsets_ns(
+    values: np.ndarray[Any, Any], name: str, stamp_ns: int
+) -> np.ndarray[Any, np.dtype[np.int64]]:
+    """Per-point time -> int64 ns relative to the scan stamp.
+
+    `t` is an integer ns offset (Ouster); `time` float seconds relative to the stamp (Velodyne);
+    `timestamp` float seconds since the epoch (Hesai, Livox). A `time` or `timestamp` that is
+    larger than a day is taken as absolute seconds, and an integer beyond 1e15 as absolute ns.
+    """
+    if values.dtype.kind in "iu":
+        v = values.astype(np.int64)
+        # Only 64-bit integers can hold absolute epoch nanoseconds.
+        if values.dtype.itemsize == 8 and v.size and max(int(v.max()), -int(v.min())) > 10**15:
+            return v - np.int64(stamp_ns)
+        return v
+    v64 = values.astype(np.float64)
+    absolute = name == "timestamp" or (v64.size > 0 and float(np.nanmax(np.abs(v64))) > 86400.0)
+    if absolute:
+        # Subtract whole seconds first: float64 epoch seconds keep only ~0.2 us resolution.
+        sec, rem_ns = divmod(stamp_ns, 1_000_000_000)
+        rel_s = (v64 - float(sec)) - rem_ns / 1e9
+        return np.round(rel_s * 1e9).astype(np.int64)
+    return np.round(v64 * 1e9).astype(np.int64)
+
+
+def decode_laserscan(msg: Any, stamp_ns: int) -> Scan2D:
+    """sensor_msgs/LaserScan -> 2D points; NaN, inf and out-of-range readings dropped."""
+    ranges = np.asarray(msg.ranges, dtype=np.float32)
+    i = np.arange(ranges.shape[0])
+    angles = float(msg.angle_min) + i * float(msg.angle_increment)
+    with np.errstate(invalid="ignore"):
+        keep = (
+            np.isfinite(ranges)
+            & (ranges >= float(msg.range_min))
+            & (ranges <= float(msg.range_max))
+        )
+    r = ranges[keep].astype(np.float64)
+    a = angles[keep]
+    xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1).astype(np.float32)
+    t_offset = None
+    if float(msg.time_increment) > 0:
+        t_offset = np.round(i[keep] * float(msg.time_increment) * 1e9).astype(np.int64)
+    return Scan2D(stamp_ns=stamp_ns, frame_id=str(msg.header.frame_id), xy=xy, t_offset_ns=t_offset)
+
+
+@dataclass(frozen=True)
+class PressureUnit:
+    name: str
+    to_pa: float
+
+
+# Plausible barometer readings on Earth (from the Dead Sea to ~9 km up) in each unit.
+_PRESSURE_UNITS = (
+    (PressureUnit("Pa", 1.0), 25_000.0, 115_000.0),
+    (PressureUnit("hPa", 100.0), 250.0, 1_150.0),
+    (PressureUnit("kPa", 1000.0), 25.0, 115.0),
+)
+
+
+def pressure_unit(values_pa: np.ndarray[Any, Any]) -> PressureUnit | None:
+    """The unit the readings were published in, judged by their median magnitude."""
+    if values_pa.size == 0:
+        return PressureUnit("Pa", 1.0)
+    median = float(np.nanmedian(values_pa))
+    for unit, low, high in _PRESSURE_UNITS:
+        if low <= median <= high:
+            return unit
+    return None
+
+
+def quat_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """Unit quaternion (x, y, z, w) -> 3x3 rotation matrix (normalised first)."""
+    q = np.array([x, y, z, w], dtype=np.float64)
+    norm = float(np.linalg.norm(q))
+    if norm == 0.0:
+        return np.eye(3)
+    x, y, z, w = q / norm
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def transform_matrix(transform: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """geometry_msgs/Transform -> 4x4 homogeneous matrix."""
+    t, q = transform.translation, transform.rotation
+    out = np.eye(4)
+    out[:3, :3] = quat_to_matrix(float(q.x), float(q.y), float(q.z), float(q.w))
+    out[:3, 3] = [float(t.x), float(t.y), float(t.z)]
+    return out
+
+
+# ----- a direct PointCloud2 parser ------------------------------------------------------------
+# rosbags' generic deserialiser builds Python objects for every field; a lidar scan only needs a
+# dozen numbers and a view of its data, so the two wire formats are parsed directly (the data
+# stays a zero-copy memoryview of the message bytes).
+
+
+@dataclass(frozen=True)
+class _Stamp:
+    sec: int
+    nanosec: int
+
+
+@dataclass(frozen=True)
+class _Header:
+    stamp: _Stamp
+    frame_id: str
+
+
+@dataclass(frozen=True)
+class _PointField:
+    name: str
+    offset: int
+    datatype: int
+    count: int
+
+
+@dataclass(frozen=True)
+class PointCloud2Msg:
+    """The fields of a sensor_msgs/PointCloud2 that decode_pointcloud2 reads."""
+
+    header: _Header
+    height: int
+    width: int
+    fields: list[_PointField]
+    is_bigendian: bool
+    point_step: int
+    row_step: int
+    data: memoryview
+    is_dense: bool
+
+
+class _Cursor:
+    def __init__(self, buf: memoryview, pos: int, order: str, align_base: int, aligned: bool) -> None:
+        self.buf, self.pos, self.order = buf, pos, order
+        self.base, self.aligned = align_base, aligned
+
+    def align(self, n: int) -> None:
+        if self.aligned:
+            self.pos += (-(self.pos - self.base)) % n
+
+    def u32(self) -> int:
+        self.align(4)
+        (v,) = struct.unpack_from(self.order + "I", self.buf, self.pos)
+        self.pos += 4
+        return int(v)
+
+    def u8(self) -> int:
+        v = self.buf[self.pos]
+        self.pos += 1
+        return int(v)
+
+    def string(self, nul: bool) -> str:
+        n = self.u32()
+        end = self.pos + n
+        if end > len(self.buf):
+            raise IndexError("string past the end")
+        raw = bytes(self.buf[self.pos : end - (1 if nul and n else 0)])
+        self.pos = end
+        return raw.decode("utf-8", errors="replace")
+
+    def blob(self) -> memoryview:
+        n = self.u32()
+        end = self.pos + n
+        if end > len(self.buf):
+            raise IndexError(f"data of {n} bytes runs past the end of the message")
+        out = self.buf[self.pos : end]
+        self.pos = end
+        return out
+
+
+def parse_pointcloud2(data: bytes | memoryview, encoding: str, where: str = "") -> PointCloud2Msg:
+    """Serialised sensor_msgs/PointCloud2 (encoding "cdr" or "ros1") -> PointCloud2Msg."""
+    buf = memoryview(data).cast("B")
+    try:
+        if encoding == "cdr":
+            if len(buf) < 4:
+                raise IndexError("shorter than the CDR header")
+            order = "<" if buf[1] & 1 else ">"
+            c = _Cursor(buf, 4, order, 4, aligned=True)
+            sec = struct.unpack_from(order + "i", buf, c.pos)[0]
+            c.pos += 4
+            nanosec = c.u32()
+            frame = c.string(nul=True)
+        elif encoding == "ros1":
+            c = _Cursor(buf, 0, "<", 0, aligned=False)
+            c.u32()  # seq
+            sec, nanosec = c.u32(), c.u32()
+            frame = c.string(nul=False)
+        else:
+            raise DecodeError(f"cannot parse PointCloud2 in encoding '{encoding}'", where)
+        height, width = c.u32(), c.u32()
+        fields = []
+        for _ in range(c.u32()):
+            name = c.string(nul=encoding == "cdr")
+            offset = c.u32()
+            datatype = c.u8()
+            fields.append(_PointField(name, offset, datatype, c.u32()))
+        is_bigendian = bool(c.u8())
+        point_step, row_step = c.u32(), c.u32()
+        blob = c.blob()
+        is_dense = bool(c.u8()) if c.pos < len(buf) else False
+    except (IndexError, struct.error) as err:
+        raise DecodeError(f"truncated or corrupt PointCloud2 message ({err})", where) from err
+    return PointCloud2Msg(
+        header=_Header(_Stamp(sec, nanosec), frame),
+        height=height,
+        width=width,
+        fields=fields,
+        is_bigendian=is_bigendian,
+        point_step=point_step,
+        row_step=row_step,
+        data=blob,
+        is_dense=is_dense,
+    )

@@ -1,0 +1,55 @@
+"""Terminal rendering of `mfmap info` (rich renderables; the CLI prints them)."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+
+from rich.console import Group, RenderableType
+from rich.table import Table
+from rich.text import Text
+
+from mfmap.ingest.source import LogSummary
+
+
+def _clock(ns: int | None, date: bool = False) -> str:
+    if ns is None:
+        return "-"
+    fmt = "%Y-%m-%d %H:%M:%S.%f" if date else "%H:%M:%S.%f"
+    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).strftime(fmt)[:-3]
+
+
+def render_info(summary: LogSummary) -> RenderableType:
+    """Table of topics (type, role, count, rate, first/last time) under a one-line header."""
+    head = Text.assemble(
+        (str(summary.path), "bold"),
+        f"  format {summary.format}  duration {summary.duration_s:.3f} s  "
+        f"{summary.message_count} messages  {_clock(summary.start_ns, True)} .. {_clock(summary.end_ns, True)} UTC",
+    )
+    table = Table(show_header=True, header_style="bold", box=None, pad_edge=False)
+    for col, justify in (
+        ("topic", "left"),
+        ("type", "left"),
+        ("role", "left"),
+        ("count", "right"),
+        ("rate Hz", "right"),
+        ("first (UTC)", "left"),
+        ("last (UTC)", "left"),
+    ):
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for t in summary.topics:
+        if t.role is not None:
+            role = Text(t.role.value, style="green")
+        elif t.candidate_for is not None:
+            role = Text(f"({t.candidate_for.value}: not chosen)", style="yellow")
+        else:
+            role = Text("-", style="dim")
+        table.add_row(
+            t.name,
+            t.msgtype or "?",
+            role,
+            str(t.count),
+            f"{t.rate_hz:.2f}",
+            _clock(t.first_ns),
+            _clock(t.last_ns),
+        )
+    return Group(head, table)
