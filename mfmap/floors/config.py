@@ -1,6 +1,15 @@
 from __future__ import annotations
 
+from enum import Enum
+
 from pydantic import BaseModel, ConfigDict, Field
+
+
+class FilterMethod(str, Enum):
+    """How the height trace is smoothed before transitions are looked for."""
+
+    RTS = "rts"  # spike rejection + forward-backward (Rauch-Tung-Striebel) constant-velocity smoother
+    SLIDING_MEAN = "sliding_mean"  # seed 000: mean of the last 30 samples (the baseline)
 
 
 class FloorsConfig(BaseModel):
@@ -8,5 +17,60 @@ class FloorsConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    temperature_k: float = Field(295.0, description="air temperature for pressure -> height (seed 000)")
-    min_floor_height_m: float = Field(2.0, description="smallest height change that is a floor change")
+    temperature_k: float = Field(
+        295.0, gt=0, description="air temperature for pressure -> height (seed 000)"
+    )
+    min_floor_height_m: float = Field(
+        2.0, gt=0, description="smallest height change that is a floor change"
+    )
+    method: FilterMethod = Field(
+        FilterMethod.RTS, description="rts (spike rejection + RTS smoother) or sliding_mean (seed 000)"
+    )
+    sliding_window_samples: int = Field(
+        30, ge=1, description="window of the sliding_mean baseline, in samples (seed 000: 30)"
+    )
+    spike_window_s: float = Field(
+        1.0, gt=0, description="half-width of the Hampel window that rejects single-sample spikes"
+    )
+    spike_threshold_sigma: float = Field(
+        4.0, gt=0, description="a sample further than this many robust sigmas from its median is a spike"
+    )
+    max_transient_s: float = Field(
+        8.0, ge=0, description="pressure pulses (doors, HVAC) up to this long are removed"
+    )
+    noise_m: float | None = Field(
+        None, gt=0, description="barometer height noise (1 sigma, m); null = estimated from the trace"
+    )
+    accel_noise_m_s2: float = Field(
+        0.3, gt=0, description="RTS process noise: vertical acceleration (1 sigma over 1 s, m/s^2)"
+    )
+    min_vertical_speed_m_s: float = Field(
+        0.08, gt=0, description="a transition must reach this vertical speed (stairs, elevators)"
+    )
+    max_vertical_speed_m_s: float = Field(
+        2.5, gt=0, description="faster height changes are pressure steps (doors, HVAC), not rides"
+    )
+    max_vertical_accel_m_s2: float = Field(
+        1.5, gt=0, description="no ride or climb accelerates harder; faster steps are not floors"
+    )
+    stop_vertical_speed_m_s: float = Field(
+        0.03, gt=0, description="a transition starts and ends where the vertical speed falls below this"
+    )
+    max_pause_s: float = Field(
+        15.0, ge=0, description="partial height changes this close in time are joined (stair landings)"
+    )
+    level_window_s: float = Field(
+        60.0, gt=0, description="floor level before/after a transition: robust line over this much of the visit (s)"
+    )
+    cluster_tolerance_m: float = Field(
+        1.0, gt=0, description="visits whose elevations differ by less than this are the same floor"
+    )
+    moving_speed_m_s: float = Field(
+        0.05, gt=0, description="odometry horizontal speed above which the robot is moving"
+    )
+    moving_yaw_rate_rad_s: float = Field(
+        0.1, gt=0, description="odometry/IMU yaw rate above which the robot is moving"
+    )
+    moving_accel_std_m_s2: float = Field(
+        0.3, gt=0, description="IMU horizontal acceleration std (over 1 s) above which it is moving"
+    )

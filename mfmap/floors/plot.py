@@ -1,0 +1,85 @@
+"""PNG of a floor segmentation: raw and filtered height, floor levels, transitions shaded."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from mfmap.errors import OutputError
+from mfmap.types import FloorSegmentation, TransitionKind
+
+_KIND_COLOUR = {TransitionKind.ELEVATOR: "#9467bd", TransitionKind.STAIRS: "#2ca02c", TransitionKind.UNKNOWN: "#7f7f7f"}
+
+
+def plot_segmentation(seg: FloorSegmentation, png_path: Path, title: str = "") -> Path:
+    """Write the plot atomically and return its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    start_ns = int(seg.stamp_ns[0])
+    t_s = (seg.stamp_ns - start_ns) / 1e9
+    # The raw trace is relative to the first second; shift it so the start floor is at 0 too.
+    first = seg.floor_of_sample[0]
+    on_start = seg.floor_of_sample == first
+    offset = float(np.median(seg.height_raw_m[on_start] - seg.height_filtered_m[on_start])) if first >= 0 else 0.0
+    fig, ax = plt.subplots(figsize=(12, 4.8))
+    ax.plot(t_s, seg.height_raw_m - offset, color="#aec7e8", linewidth=0.5, label="raw (hypsometric)")
+    ax.plot(t_s, seg.height_filtered_m - offset, color="#1f77b4", linewidth=1.3, label="filtered")
+    # Floor levels come from the change across each transition, not from the trace (which drifts
+    # with the weather): thin lines for the levels, thick ones for each visit.
+    first_visit = True
+    for f in seg.floors:
+        ax.axhline(f.elevation_m, color="#d62728", linewidth=0.6, linestyle="--", alpha=0.6)
+        for a, b in f.visits:
+            ax.hlines(
+                f.elevation_m,
+                (a - start_ns) / 1e9,
+                (b - start_ns) / 1e9,
+                color="#d62728",
+                linewidth=2.5,
+                label="floor visits (drift-free levels)" if first_visit else "_nolegend_",
+            )
+            first_visit = False
+        ax.annotate(
+            f"floor {f.id}  {f.elevation_m:+.2f} m",
+            (1.0, f.elevation_m),
+            xycoords=("axes fraction", "data"),
+            xytext=(4, 0),
+            textcoords="offset points",
+            va="center",
+            fontsize=8,
+            color="#d62728",
+        )
+    seen: set[TransitionKind] = set()
+    for tr in seg.transitions:
+        colour = _KIND_COLOUR[tr.kind]
+        ax.axvspan(
+            (tr.start_ns - start_ns) / 1e9,
+            (tr.end_ns - start_ns) / 1e9,
+            color=colour,
+            alpha=0.25,
+            label=tr.kind.value if tr.kind not in seen else None,
+        )
+        seen.add(tr.kind)
+    ax.set_xlabel("time since the first barometer sample (s)")
+    ax.set_ylabel("height above the start floor (m)")
+    ax.set_title(title or "barometer floors", fontsize=10)
+    ax.grid(True, linewidth=0.3)
+    ax.legend(loc="upper left", fontsize=8, ncol=4)
+    fig.tight_layout()
+    fig.subplots_adjust(right=0.86)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{png_path.name}.", suffix=".png", dir=png_path.parent)
+        os.close(fd)
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, png_path)
+    except OSError as err:
+        raise OutputError(f"cannot write the plot ({err.strerror or err})", png_path) from err
+    finally:
+        plt.close(fig)
+    return png_path
