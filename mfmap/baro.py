@@ -1,0 +1,41 @@
+"""Barometric height: the hypsometric relation of seeds/000 (eq. 3) and its inverse.
+
+    z = T0 / L * ((P2 / P1) ** (-L * R / g) - 1)
+
+One place for the formula, so the simulator that makes pressure from height and the floors stage
+that makes height from pressure cannot disagree.
+"""
+
+from __future__ import annotations
+
+from typing import TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+T0_K = 295.0  # room temperature used by seeds/000
+LAPSE_K_PER_M = 0.0065
+R_J_PER_KG_K = 287.053
+G_M_PER_S2 = 9.81
+
+_EXP = LAPSE_K_PER_M * R_J_PER_KG_K / G_M_PER_S2
+
+ArrayOrFloat = TypeVar("ArrayOrFloat", float, npt.NDArray[np.float64])
+
+
+def height_from_pressure(
+    p_pa: ArrayOrFloat, p_ref_pa: float | npt.NDArray[np.float64], temperature_k: float = T0_K
+) -> ArrayOrFloat:
+    """Height in metres above the level where the pressure is `p_ref_pa`."""
+    ratio = np.asarray(p_pa, dtype=np.float64) / p_ref_pa
+    height = temperature_k / LAPSE_K_PER_M * (ratio ** (-_EXP) - 1.0)
+    return height if isinstance(p_pa, np.ndarray) else float(height)
+
+
+def pressure_from_height(
+    h_m: ArrayOrFloat, p_ref_pa: float | npt.NDArray[np.float64], temperature_k: float = T0_K
+) -> ArrayOrFloat:
+    """Pressure in Pa at `h_m` metres above the level where the pressure is `p_ref_pa`."""
+    h = np.asarray(h_m, dtype=np.float64)
+    pressure = p_ref_pa * (1.0 + LAPSE_K_PER_M * h / temperature_k) ** (-1.0 / _EXP)
+    return pressure if isinstance(h_m, np.ndarray) else float(pressure)

@@ -1,0 +1,206 @@
+"""Ground-truth files: gt_trajectory.tum, gt_points.csv, gt_floors.json, gt_cloud.ply.
+
+Formats as in DESIGN.md. Times are epoch seconds (the .tum and .csv carry all nine nanosecond
+digits). Besides the shared schema, gt_floors.json has:
+- per transition: "connector" (0 = elevator, 1 = stairs), "height_change_m";
+- "sim": scenario, seed, start_ns (stamp of the first lidar scan = world-frame origin),
+  floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k,
+  baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
+  door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible).
+gt_cloud.ply samples the static surfaces (closed landing doors included, the cabin not) with an
+int `floor` per point: the floor whose space holds the point (its floor surface, walls, furniture
+and its ceiling, i.e. the underside of the slab above).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mfmap.baro import T0_K, pressure_from_height
+from mfmap.sim.building import (
+    SHAFT_CENTER,
+    STAIR_X0,
+    STAIR_X1,
+    STAIR_Y0,
+    STAIR_Y1,
+    Building,
+)
+from mfmap.sim.sensors import BARO_MOUNT, Barometer
+from mfmap.sim.trajectory import Trajectory, quaternions
+
+if TYPE_CHECKING:
+    from mfmap.sim.scenarios import ScenarioSpec
+
+
+def epoch_text(start_ns: int, t_s: float) -> str:
+    """Epoch seconds with nanosecond digits, computed in integers so no float rounding shows."""
+    ns = start_ns + round(t_s * 1e9)
+    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+
+
+def epoch_s(start_ns: int, t_s: float) -> float:
+    return (start_ns + round(t_s * 1e9)) / 1e9
+
+
+def _atomic_write(path: Path, data: bytes) -> Path:
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+    return path
+
+
+def write_all(
+    out: Path,
+    spec: ScenarioSpec,
+    building: Building,
+    traj: Trajectory,
+    baro: Barometer,
+    start_ns: int,
+    scan_times: npt.NDArray[np.float64],
+    seed: int,
+) -> dict[str, Path]:
+    return {
+        "trajectory": write_trajectory(out / "gt_trajectory.tum", traj, start_ns, scan_times),
+        "points": write_points(out / "gt_points.csv", traj, start_ns),
+        "floors": write_floors(out / "gt_floors.json", spec, building, traj, baro, start_ns, seed),
+        "cloud": write_cloud(out / "gt_cloud.ply", building, spec.gt_spacing_m, seed),
+    }
+
+
+def write_trajectory(path: Path, traj: Trajectory, start_ns: int, scan_times: npt.NDArray[np.float64]) -> Path:
+    """Base pose at every scan stamp: `t x y z qx qy qz qw`."""
+    xyz, rpy = traj.interp(scan_times)
+    q = quaternions(rpy)
+    lines = [
+        f"{epoch_text(start_ns, float(t))} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} "
+        f"{qq[0]:.9f} {qq[1]:.9f} {qq[2]:.9f} {qq[3]:.9f}"
+        for t, p, qq in zip(scan_times, xyz, q, strict=True)
+    ]
+    return _atomic_write(path, ("\n".join(lines) + "\n").encode())
+
+
+def write_points(path: Path, traj: Trajectory, start_ns: int) -> Path:
+    lines = ["label,floor,x,y,z,t_start,t_end"]
+    for c in traj.checkpoints:
+        lines.append(
+            f"{c.label},{c.floor},{c.x:.4f},{c.y:.4f},{c.z:.4f},"
+            f"{epoch_text(start_ns, c.t_start_s)},{epoch_text(start_ns, c.t_end_s)}"
+        )
+    return _atomic_write(path, ("\n".join(lines) + "\n").encode())
+
+
+def floors_document(
+    spec: ScenarioSpec, building: Building, traj: Trajectory, baro: Barometer, start_ns: int, seed: int
+) -> dict[str, Any]:
+    visited = sorted({f for f, _, _ in traj.floor_visits})
+    all_floors = list(range(building.n_floors))
+    stair_xy = ((STAIR_X0 + STAIR_X1) / 2, (STAIR_Y0 + STAIR_Y1) / 2)
+    connectors = [
+        {"id": 0, "kind": "elevator", "x": SHAFT_CENTER[0], "y": SHAFT_CENTER[1], "floors": all_floors},
+        {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": all_floors},
+    ]
+    floors = []
+    for k in visited:
+        elev = building.elevation(k)
+        floors.append(
+            {
+                "id": k,
+                "elevation_m": round(elev, 6),
+                # Pressure at the barometer's height on this floor, at the start's weather.
+                "pressure_pa": round(pressure_from_height(elev + BARO_MOUNT.xyz[2], baro.p0_pa, T0_K), 3),
+                "visits": [
+                    [epoch_s(start_ns, t0), epoch_s(start_ns, t1)] for f, t0, t1 in traj.floor_visits if f == k
+                ],
+                "connectors": [0, 1],
+            }
+        )
+    transitions = [
+        {
+            "kind": tr.kind,
+            "from": tr.from_floor,
+            "to": tr.to_floor,
+            "t_start": epoch_s(start_ns, tr.t_start_s),
+            "t_end": epoch_s(start_ns, tr.t_end_s),
+            "height_change_m": round(tr.height_change_m, 6),
+            "x": round(tr.x, 6),
+            "y": round(tr.y, 6),
+            "x_end": round(tr.x_end, 6),
+            "y_end": round(tr.y_end, 6),
+            "connector": 0 if tr.kind == "elevator" else 1,
+        }
+        for tr in traj.transitions
+    ]
+    return {
+        "floors": floors,
+        "transitions": transitions,
+        "connectors": connectors,
+        "sim": {
+            "scenario": spec.name,
+            "seed": seed,
+            "start_ns": start_ns,
+            "floor_height_m": building.floor_height_m,
+            "reference_pressure_pa": round(baro.p0_pa, 3),
+            "temperature_k": T0_K,
+            "baro_height_above_base_m": BARO_MOUNT.xyz[2],
+            "drift_pa_per_h": baro.drift_sign * baro.spec.drift_pa_per_h,
+            "pressure_transients": [
+                [epoch_s(start_ns, t0), epoch_s(start_ns, t1), round(dp, 3)] for t0, t1, dp in baro.transients
+            ],
+            "door_open": [[epoch_s(start_ns, t0), epoch_s(start_ns, t1), f] for t0, t1, f in traj.door_open],
+        },
+    }
+
+
+def write_floors(
+    path: Path, spec: ScenarioSpec, building: Building, traj: Trajectory, baro: Barometer, start_ns: int, seed: int
+) -> Path:
+    doc = floors_document(spec, building, traj, baro, start_ns, seed)
+    return _atomic_write(path, (json.dumps(doc, indent=2) + "\n").encode())
+
+
+_PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("floor", "<i4")])
+
+
+def write_ply(
+    path: Path, total: int, chunks: Iterable[tuple[npt.NDArray[np.float32], npt.NDArray[np.int32]]]
+) -> Path:
+    """Binary little-endian PLY with float x, y, z and int floor, streamed chunk by chunk."""
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {total}\n"
+        "property float x\nproperty float y\nproperty float z\nproperty int floor\nend_header\n"
+    )
+    tmp = path.with_name(f".{path.name}.partial")
+    written = 0
+    with tmp.open("wb") as f:
+        f.write(header.encode())
+        for xyz, floor in chunks:
+            rec = np.empty(len(xyz), dtype=_PLY_DTYPE)
+            rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+            rec["floor"] = floor
+            f.write(rec.tobytes())
+            written += len(rec)
+    if written != total:
+        raise AssertionError(f"PLY header says {total} points, wrote {written}")
+    os.replace(tmp, path)
+    return path
+
+
+def read_ply(path: Path) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int32]]:
+    """Reads what write_ply wrote (for tests and plots)."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    rec = np.frombuffer(data[end:], dtype=_PLY_DTYPE)
+    return np.column_stack([rec["x"], rec["y"], rec["z"]]), rec["floor"].copy()
+
+
+def write_cloud(path: Path, building: Building, spacing_m: float, seed: int) -> Path:
+    total, chunks = building.surface_samples(spacing_m, seed)
+    return write_ply(path, total, chunks)

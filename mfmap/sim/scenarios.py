@@ -1,0 +1,221 @@
+"""Named scenarios: a building, a route through it, and the sensors on the robot."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
+from mfmap.sim.trajectory import RouteBuilder
+
+# Checkpoints of the manual-driving experiment in seeds/000 (Table I), world frame.
+P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
+W_NORTH, W_SOUTH = (-2.75, -1.0), (-2.75, -12.0)
+
+Route = Callable[[RouteBuilder, int], None]
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    name: str
+    description: str
+    n_floors: int
+    floor_height_m: float
+    route: Route
+    start_floor: int = 0
+    lidar: LidarSpec | None = field(default_factory=LidarSpec)
+    laser: LaserSpec | None = None
+    baro: BaroSpec = field(default_factory=BaroSpec)
+    v_max: float = 0.8
+    gt_spacing_m: float = 0.05
+
+
+def checkpoint_tour(b: RouteBuilder, stop_s: float = 5.0) -> None:
+    """P1 -> P2 -> P3 -> P4 and back to P1 round the west corridor: a loop of ~40 m."""
+    b.drive(P1)
+    b.checkpoint("P1", stop_s)
+    b.drive(P2)
+    b.checkpoint("P2", stop_s)
+    b.drive(P3)
+    b.checkpoint("P3", stop_s)
+    b.drive(P4)
+    b.checkpoint("P4", stop_s)
+    b.drive(W_SOUTH, W_NORTH, (0.0, -1.0), P1)
+
+
+def east_tour(b: RouteBuilder) -> None:
+    """Corridor N to the east, down corridor E, along corridor F and back: out and back."""
+    b.drive((10.0, -1.0), (14.25, -1.0), (14.25, -11.0), (24.0, -11.0), v_max=0.9)
+    b.drive((14.25, -11.0), (14.25, -1.5), (3.0, -1.5), v_max=0.9)
+
+
+def _tiny(b: RouteBuilder, reps: int) -> None:
+    for _ in range(reps):
+        b.checkpoint("P1", 3.0)
+        b.drive(P2)
+        b.checkpoint("P2", 3.0)
+    b.elevator(1)
+    for _ in range(reps):
+        b.drive(P2)
+        b.checkpoint("P2", 3.0)
+        if reps > 1:
+            b.drive(P1)
+
+
+def _two_floor(b: RouteBuilder, reps: int) -> None:
+    for _ in range(reps):
+        checkpoint_tour(b)
+    b.elevator(1)
+    for _ in range(reps):
+        checkpoint_tour(b)
+    b.checkpoint("P1", 3.0)
+
+
+def _three_floor(b: RouteBuilder, reps: int) -> None:
+    for _ in range(reps):
+        checkpoint_tour(b, 4.0)
+    b.elevator(1)
+    for _ in range(reps):
+        checkpoint_tour(b, 4.0)
+    b.elevator(2)
+    for _ in range(reps):
+        checkpoint_tour(b, 4.0)
+    b.elevator(0)
+    for _ in range(reps):
+        b.drive(P2)
+        b.checkpoint("P2", 4.0)
+        b.drive(P1)
+        b.checkpoint("P1", 4.0)
+
+
+def _stairs(b: RouteBuilder, reps: int) -> None:
+    b.checkpoint("P1", 4.0)
+    for _ in range(reps):
+        b.drive(P2)
+        b.checkpoint("P2", 4.0)
+        b.drive((14.25, -1.5), (14.25, -11.0))
+    b.stairs_up()
+    for _ in range(reps):
+        b.drive((20.0, -11.0))
+        b.checkpoint("S1", 4.0)
+    b.stairs_up()
+    for _ in range(reps):
+        b.drive((20.0, -11.0))
+        b.checkpoint("S1", 4.0)
+        b.drive((14.25, -11.0), (14.25, -1.5), (8.0, -1.5))
+        b.checkpoint("P2", 4.0)
+
+
+def _single(b: RouteBuilder, reps: int) -> None:
+    for _ in range(reps):
+        checkpoint_tour(b)
+        east_tour(b)
+    b.drive(P1)
+    b.checkpoint("P1", 3.0)
+
+
+def _long(b: RouteBuilder, reps: int) -> None:
+    def visit() -> None:
+        for _ in range(reps):
+            checkpoint_tour(b, 4.0)
+            east_tour(b)
+            checkpoint_tour(b, 4.0)
+
+    visit()
+    b.elevator(2)
+    visit()
+    b.elevator(3)
+    visit()
+    b.drive(P2, (14.25, -1.5), (14.25, -11.0))
+    b.stairs_up()
+    b.drive((14.25, -11.0), (14.25, -1.5))
+    visit()
+    b.elevator(0)
+    visit()
+    b.elevator(1)
+    for _ in range(reps):
+        checkpoint_tour(b, 4.0)
+
+
+_DRIFT = BaroSpec(drift_pa_per_h=200.0, transient_floors=(0, 1, 2), transient_every_s=30.0)
+
+SCENARIOS: dict[str, ScenarioSpec] = {
+    s.name: s
+    for s in (
+        ScenarioSpec(
+            "tiny",
+            "86 s, two floors 3.5 m apart, elevator, 16x512 lidar (for tests)",
+            2,
+            3.5,
+            _tiny,
+            lidar=LidarSpec(beams=16, columns=512),
+        ),
+        ScenarioSpec(
+            "tiny-2d",
+            "tiny with a 2D LaserScan (360 deg, 15 Hz) instead of the 3D lidar",
+            2,
+            3.5,
+            _tiny,
+            lidar=None,
+            laser=LaserSpec(),
+        ),
+        ScenarioSpec(
+            "two-floor",
+            "seeds/000 experiment: P1..P4 on two floors 4.7 m apart, elevator, ~4 min",
+            2,
+            4.7,
+            _two_floor,
+        ),
+        ScenarioSpec(
+            "two-floor-2d",
+            "two-floor with a 2D LaserScan (360 deg, 15 Hz, as seeds/001) instead of the 3D lidar",
+            2,
+            4.7,
+            _two_floor,
+            lidar=None,
+            laser=LaserSpec(),
+        ),
+        ScenarioSpec(
+            "three-floor-revisit",
+            "up to the third floor by elevator and back down to the first, 4.0 m floors, ~7 min",
+            3,
+            4.0,
+            _three_floor,
+        ),
+        ScenarioSpec(
+            "three-floor-drift",
+            "three-floor-revisit with 200 Pa/h weather drift and frequent door/HVAC steps",
+            3,
+            4.0,
+            _three_floor,
+            baro=_DRIFT,
+        ),
+        ScenarioSpec(
+            "stairs",
+            "carried up two flights of stairs (3.5 m floors, pitch on the steps), ~4 min",
+            3,
+            3.5,
+            _stairs,
+            v_max=0.7,
+        ),
+        ScenarioSpec(
+            "single-floor",
+            "one floor: checkpoint loop and an east tour, ~3 min",
+            1,
+            4.0,
+            _single,
+        ),
+        ScenarioSpec(
+            "long",
+            "~30 min over five 4.0 m floors (basement included), elevator and stairs, 16x512 lidar",
+            5,
+            4.0,
+            _long,
+            start_floor=1,
+            # Ouster's 512x10 mode: keeps 30 min of log near 2.5 GB and its generation < 5 min.
+            lidar=LidarSpec(beams=16, columns=512),
+            baro=BaroSpec(drift_pa_per_h=60.0, transient_floors=(0, 2, 4)),
+            gt_spacing_m=0.08,
+        ),
+    )
+}

@@ -1,0 +1,404 @@
+"""The robot's ground-truth motion: smooth drives, turns in place, waits, elevator rides, stairs.
+
+A `RouteBuilder` appends motion primitives to a pose sampled at 200 Hz (the IMU rate) and records
+the events ground truth needs: checkpoint windows, floor transitions, elevator door states.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mfmap.sim.building import (
+    LANE_A_Y,
+    LANE_B_Y,
+    SHAFT_CENTER,
+    STAIR_DOOR_X,
+    STAIR_FLIGHT_X0,
+    STAIR_TREAD_M,
+    STAIR_Y1,
+    Building,
+)
+
+F64 = npt.NDArray[np.float64]
+FArr = npt.NDArray[np.floating[Any]]
+
+RATE_HZ = 200
+DT_S = 1.0 / RATE_HZ
+YAW_RATE_MAX = 0.6  # rad/s
+YAW_ACC_MAX = 1.0  # rad/s^2
+ACC_MAX = 0.4  # m/s^2
+ELEVATOR_SPEED = 1.0  # m/s
+ELEVATOR_ACC = 0.5  # m/s^2
+STAIR_SPEED = 0.35  # m/s along the flight
+ELEVATOR_FRONT = (SHAFT_CENTER[0], -0.6)
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    label: str
+    floor: int
+    x: float
+    y: float
+    z: float
+    t_start_s: float
+    t_end_s: float
+
+
+@dataclass(frozen=True)
+class TransitionEvent:
+    kind: str  # "elevator" | "stairs"
+    from_floor: int
+    to_floor: int
+    t_start_s: float
+    t_end_s: float
+    x: float
+    y: float
+    x_end: float
+    y_end: float
+    height_change_m: float
+
+
+@dataclass
+class Trajectory:
+    """Base pose at t = i * DT_S (seconds from the first lidar scan), world frame."""
+
+    xyz: F64  # (N, 3)
+    rpy: F64  # (N, 3) roll, pitch, yaw (yaw unwrapped)
+    checkpoints: list[Checkpoint]
+    transitions: list[TransitionEvent]
+    door_open: list[tuple[float, float, int]]  # (t_open, t_close, floor) landing+cabin doors open
+    cabin_z: list[tuple[float, float]]  # (t, z) knots of the cabin floor height, piecewise linear
+    floor_visits: list[tuple[int, float, float]]  # (floor, t_start, t_end)
+
+    @property
+    def duration_s(self) -> float:
+        return (len(self.xyz) - 1) * DT_S
+
+    def interp(self, t_s: FArr) -> tuple[F64, F64]:
+        """Positions (M, 3) and roll/pitch/yaw (M, 3) at arbitrary times (linear)."""
+        f = np.clip(np.asarray(t_s, dtype=np.float64) / DT_S, 0, len(self.xyz) - 1)
+        i0 = np.minimum(f.astype(np.int64), len(self.xyz) - 2)
+        w = (f - i0)[:, None]
+        xyz = self.xyz[i0] * (1 - w) + self.xyz[i0 + 1] * w
+        rpy = self.rpy[i0] * (1 - w) + self.rpy[i0 + 1] * w
+        return xyz, rpy
+
+    def cabin_z_at(self, t_s: FArr) -> F64:
+        ts, zs = zip(*self.cabin_z, strict=True)
+        return np.interp(t_s, np.array(ts), np.array(zs))
+
+    def door_open_at(self, t_s: float) -> int | None:
+        for t0, t1, floor in self.door_open:
+            if t0 <= t_s < t1:
+                return floor
+        return None
+
+
+def rotation_matrices(rpy: F64) -> F64:
+    """(M, 3, 3) rotations R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = rpy[:, 0], rpy[:, 1], rpy[:, 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    m = np.empty((len(rpy), 3, 3))
+    m[:, 0, 0] = cy * cp
+    m[:, 0, 1] = cy * sp * sr - sy * cr
+    m[:, 0, 2] = cy * sp * cr + sy * sr
+    m[:, 1, 0] = sy * cp
+    m[:, 1, 1] = sy * sp * sr + cy * cr
+    m[:, 1, 2] = sy * sp * cr - cy * sr
+    m[:, 2, 0] = -sp
+    m[:, 2, 1] = cp * sr
+    m[:, 2, 2] = cp * cr
+    return m
+
+
+def quaternions(rpy: F64) -> F64:
+    """(M, 4) quaternions (x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    hr, hp, hy = rpy[:, 0] / 2, rpy[:, 1] / 2, rpy[:, 2] / 2
+    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
+    q = np.stack(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ],
+        axis=1,
+    )
+    return q
+
+
+def time_parametrize(ds: F64, v_limit: F64, acc: float) -> F64:
+    """Times at the nodes of a path (spacings `ds`, speed limits per node), starting and ending
+    at rest, accelerating at most `acc`. Classic forward/backward pass."""
+    n = len(v_limit)
+    v = v_limit.copy()
+    v[0] = v[-1] = 0.0
+    for i in range(1, n):
+        v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * acc * ds[i - 1]))
+    for i in range(n - 2, -1, -1):
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * acc * ds[i]))
+    v_mid = np.maximum((v[:-1] + v[1:]) / 2, 1e-3)
+    return np.concatenate([[0.0], np.cumsum(ds / v_mid)])
+
+
+def profile_1d(distance: float, v_max: float, acc: float) -> F64:
+    """Fraction of `distance` covered (0..1) at each 200 Hz tick of a rest-to-rest move."""
+    if distance <= 1e-9:
+        return np.zeros(0)
+    n = max(20, int(distance / 0.002))
+    ds = np.full(n, distance / n)
+    t = time_parametrize(ds, np.full(n + 1, v_max), acc)
+    s = np.linspace(0.0, 1.0, n + 1)
+    ticks = np.arange(1, math.ceil(t[-1] / DT_S) + 1) * DT_S
+    return np.interp(ticks, t, s)
+
+
+@dataclass
+class RouteBuilder:
+    building: Building
+    floor: int
+    rng: np.random.Generator
+    v_max: float = 0.8
+    xyz: list[F64] = field(default_factory=list)
+    rpy: list[F64] = field(default_factory=list)
+    checkpoints: list[Checkpoint] = field(default_factory=list)
+    transitions: list[TransitionEvent] = field(default_factory=list)
+    door_open: list[tuple[float, float, int]] = field(default_factory=list)
+    cabin_z: list[tuple[float, float]] = field(default_factory=list)
+    visits: list[tuple[int, float, float]] = field(default_factory=list)
+    labelled: set[tuple[str, int]] = field(default_factory=set)
+    _door_t0: float | None = None
+    _visit_t0: float = 0.0
+
+    def __post_init__(self) -> None:
+        z = self.building.elevation(self.floor)
+        self.xyz.append(np.array([[0.0, 0.0, z]]))
+        self.rpy.append(np.zeros((1, 3)))
+        self.cabin_z.append((0.0, z))
+
+    # -- state ------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        return (sum(len(a) for a in self.xyz) - 1) * DT_S
+
+    @property
+    def pos(self) -> F64:
+        return self.xyz[-1][-1]
+
+    @property
+    def yaw(self) -> float:
+        return float(self.rpy[-1][-1, 2])
+
+    def _append(self, xyz: F64, rpy: F64) -> None:
+        if len(xyz):
+            self.xyz.append(xyz)
+            self.rpy.append(rpy)
+
+    # -- primitives -------------------------------------------------------------------
+    def wait(self, seconds: float) -> None:
+        n = round(seconds / DT_S)
+        self._append(np.repeat(self.pos[None], n, 0), np.repeat(self.rpy[-1][-1:], n, 0))
+
+    def turn_to(self, yaw: float) -> None:
+        d = (yaw - self.yaw + math.pi) % (2 * math.pi) - math.pi
+        if abs(d) < 1e-3:
+            return
+        frac = profile_1d(abs(d), YAW_RATE_MAX, YAW_ACC_MAX)
+        rpy = np.repeat(self.rpy[-1][-1:], len(frac), 0)
+        rpy[:, 2] = self.yaw + d * frac
+        self._append(np.repeat(self.pos[None], len(frac), 0), rpy)
+
+    def drive(self, *points: tuple[float, float], v_max: float | None = None) -> None:
+        """Drive through `points` on the current floor, corners rounded, stopping at the last."""
+        v_max = v_max or self.v_max
+        poly = np.array([self.pos[:2], *points], dtype=np.float64)
+        if np.abs(np.diff(poly, axis=0)).sum() < 1e-3:
+            return
+        path = _smooth_path(poly)
+        seg = np.diff(path, axis=0)
+        ds = np.linalg.norm(seg, axis=1)
+        heading = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
+        head0 = float(np.arctan2(*(path[min(30, len(path) - 1)] - path[0])[::-1]))
+        self.turn_to(head0)
+        # Keep heading continuous with the robot's (unwrapped) yaw.
+        heading += round((self.yaw - heading[0]) / (2 * math.pi)) * 2 * math.pi
+        kappa = np.abs(np.gradient(heading) / np.maximum(ds, 1e-6))
+        kappa = np.convolve(kappa, np.ones(15) / 15, mode="same")
+        v_lim = np.minimum(v_max, YAW_RATE_MAX / np.maximum(kappa, 1e-6))
+        v_lim = np.concatenate([v_lim, [v_lim[-1]]])
+        t = time_parametrize(ds, v_lim, ACC_MAX)
+        ticks = np.arange(1, math.ceil(t[-1] / DT_S) + 1) * DT_S
+        xy = np.stack([np.interp(ticks, t, path[:, 0]), np.interp(ticks, t, path[:, 1])], axis=1)
+        node_heading = np.concatenate([heading, [heading[-1]]])
+        yaw = np.interp(ticks, t, node_heading)
+        z = np.full(len(ticks), self.pos[2])
+        rpy = np.zeros((len(ticks), 3))
+        rpy[:, 2] = yaw
+        self._append(np.column_stack([xy, z]), rpy)
+
+    def checkpoint(self, label: str, seconds: float = 5.0) -> None:
+        """Stand still for `seconds`; the first visit of (label, floor) goes to gt_points.csv."""
+        t0 = self.t
+        self.wait(seconds)
+        key = (label, self.floor)
+        if key not in self.labelled:
+            self.labelled.add(key)
+            x, y, z = (float(v) for v in self.pos)
+            self.checkpoints.append(Checkpoint(label, self.floor, x, y, z, t0, self.t))
+
+    def _open_doors(self) -> None:
+        self._door_t0 = self.t
+
+    def _close_doors(self) -> None:
+        assert self._door_t0 is not None
+        self.door_open.append((self._door_t0, self.t, self.floor))
+        self._door_t0 = None
+
+    def elevator(self, to_floor: int) -> None:
+        """Drive into the elevator from its front, ride to `to_floor`, drive out to its front."""
+        cx, cy = SHAFT_CENTER
+        self.drive(ELEVATOR_FRONT, v_max=0.6)
+        self.turn_to(math.pi / 2)
+        self._call_cabin()
+        self.wait(1.0)
+        self._open_doors()
+        self.wait(1.0)
+        self.drive((cx, cy), v_max=0.5)
+        self.turn_to(-math.pi / 2)
+        self.wait(1.0)
+        self._close_doors()
+        self.wait(1.0)
+        z0 = self.building.elevation(self.floor)
+        z1 = self.building.elevation(to_floor)
+        frac = profile_1d(abs(z1 - z0), ELEVATOR_SPEED, ELEVATOR_ACC)
+        t_start = self.t
+        xyz = np.repeat(self.pos[None], len(frac), 0)
+        xyz[:, 2] = z0 + (z1 - z0) * frac
+        # The cabin floor carries the robot: knots at every tick of the ride.
+        self.cabin_z.append((t_start, z0))
+        self.cabin_z += [(t_start + (i + 1) * DT_S, float(z)) for i, z in enumerate(xyz[:, 2])]
+        self._append(xyz, np.repeat(self.rpy[-1][-1:], len(frac), 0))
+        self._transition("elevator", to_floor, t_start, (cx, cy), (cx, cy), z1 - z0)
+        self.wait(1.0)
+        self._open_doors()
+        self.wait(1.0)
+        self.drive(ELEVATOR_FRONT, v_max=0.5)
+        self.wait(0.5)
+        self._close_doors()
+
+    def _call_cabin(self) -> None:
+        # An empty cabin comes to the robot's floor while it waits (doors closed, unseen).
+        z_here = self.building.elevation(self.floor)
+        z_cabin = self.cabin_z[-1][1]
+        if abs(z_cabin - z_here) > 1e-6:
+            self.cabin_z.append((self.t, z_cabin))
+            self.cabin_z.append((self.t + 0.5, z_here))
+
+    def _transition(
+        self, kind: str, to_floor: int, t_start: float, xy0: tuple[float, float],
+        xy1: tuple[float, float], dz: float,
+    ) -> None:
+        self.transitions.append(
+            TransitionEvent(kind, self.floor, to_floor, t_start, self.t, xy0[0], xy0[1], xy1[0], xy1[1], dz)
+        )
+        self.visits.append((self.floor, self._visit_t0, t_start))
+        self._visit_t0 = self.t
+        self.floor = to_floor
+
+    def stairs_up(self) -> None:
+        """Walk up one flight of the stairwell from the F corridor to the F corridor."""
+        b = self.building
+        k = self.floor
+        if k >= b.n_floors - 1:
+            raise ValueError("no floor above")
+        even = k % 2 == 0
+        lane_y = sum(LANE_A_Y if even else LANE_B_Y) / 2
+        x_land0 = sum(STAIR_DOOR_X[0]) / 2 if even else sum(STAIR_DOOR_X[1]) / 2
+        x_land1 = sum(STAIR_DOOR_X[1]) / 2 if even else sum(STAIR_DOOR_X[0]) / 2
+        x0 = STAIR_FLIGHT_X0 if even else b.stairs.flight_x1
+        x1 = b.stairs.flight_x1 if even else STAIR_FLIGHT_X0
+        sgn = 1.0 if even else -1.0
+        x_start = x0 - sgn * 0.5
+        x_end = x1 + sgn * 0.5
+        self.drive((x_land0, -11.0), v_max=0.5)
+        self.drive((x_land0, STAIR_Y1 - 0.8), (x_land0, lane_y), (x_start, lane_y), v_max=0.4)
+        self.turn_to(0.0 if even else math.pi)
+        # Climb: horizontal motion along the lane, base height on the line through the nosings,
+        # the carrier pitched up with the slope and a small bounce on every step.
+        length = abs(x_end - x_start)
+        frac = profile_1d(length, STAIR_SPEED, 0.3)
+        xs = x_start + sgn * length * frac
+        rise = b.floor_height_m
+        u = np.clip((sgn * (xs - x0) + 0.5 * STAIR_TREAD_M) / (abs(x1 - x0) + STAIR_TREAD_M), 0, 1)
+        z_lin = b.elevation(k) + rise * u
+        # Smooth the corners of the z profile over ~0.4 m of travel.
+        z = _smooth_series(z_lin, max(3, int(0.4 / max(STAIR_SPEED * DT_S, 1e-6))))
+        bounce = 0.01 * np.sin(2 * np.pi * np.abs(xs - x0) / STAIR_TREAD_M) * (u > 0) * (u < 1)
+        z = z + bounce
+        slope = np.gradient(z_lin) / np.maximum(np.abs(np.gradient(xs)), 1e-9)
+        pitch = -0.7 * np.arctan(_smooth_series(slope, 80))
+        t_start = self.t
+        xyz = np.column_stack([xs, np.full(len(xs), lane_y), z])
+        rpy = np.zeros((len(xs), 3))
+        rpy[:, 1] = pitch
+        rpy[:, 2] = self.yaw
+        self._append(xyz, rpy)
+        self._transition("stairs", k + 1, t_start, (x_start, lane_y), (x_end, lane_y), rise)
+        self.pos[2] = b.elevation(k + 1)  # exact floor height (pos is a view of the last sample)
+        self.rpy[-1][-1, 1] = 0.0
+        self.drive((x_land1, STAIR_Y1 - 0.8), (x_land1, -11.0), v_max=0.4)
+
+    def finish(self, rng: np.random.Generator) -> Trajectory:
+        """Pad to whole seconds plus one, add floor-unevenness wobble, return the trajectory."""
+        n = sum(len(a) for a in self.xyz)
+        pad = (-(n - 1)) % RATE_HZ + RATE_HZ
+        self.wait(pad * DT_S)
+        self.visits.append((self.floor, self._visit_t0, self.t))
+        xyz = np.concatenate(self.xyz)
+        rpy = np.concatenate(self.rpy)
+        speed = np.linalg.norm(np.gradient(xyz[:, :2], axis=0), axis=1) / DT_S
+        moving = np.clip(speed / 0.5, 0, 1)
+        for axis in (0, 1):
+            noise = _smooth_series(rng.normal(0, 1, len(xyz)), 40)
+            noise *= np.radians(0.25) / max(float(np.std(noise)), 1e-9)
+            rpy[:, axis] += noise * moving
+        cabin = [*self.cabin_z, (self.t, self.cabin_z[-1][1])]
+        return Trajectory(xyz, rpy, self.checkpoints, self.transitions, self.door_open, cabin, self.visits)
+
+
+def _smooth_series(x: F64, width: int) -> F64:
+    """Moving average that keeps the ends in place (odd reflection)."""
+    if width < 2 or len(x) < 3:
+        return x
+    half = min(width // 2, len(x) - 1)
+    pad_lo = 2 * x[0] - x[half:0:-1]
+    pad_hi = 2 * x[-1] - x[-2 : -half - 2 : -1]
+    xp = np.concatenate([pad_lo, x, pad_hi])
+    kernel = np.ones(2 * half + 1) / (2 * half + 1)
+    return np.convolve(xp, kernel, mode="valid")
+
+
+def _smooth_path(poly: F64, step_m: float = 0.01, corner_m: float = 1.2) -> F64:
+    """A polyline sampled every `step_m`, corners rounded by a moving average over `corner_m`."""
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(poly, axis=0), axis=1) > 1e-6])
+    poly = poly[keep]
+    if len(poly) < 2:
+        return np.repeat(poly, 2, 0)
+    seg = np.linalg.norm(np.diff(poly, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(2, int(s[-1] / step_m) + 1)
+    q = np.linspace(0, s[-1], n)
+    pts = np.column_stack([np.interp(q, s, poly[:, 0]), np.interp(q, s, poly[:, 1])])
+    width = int(corner_m / step_m)
+    out = np.column_stack([_smooth_series(pts[:, 0], width), _smooth_series(pts[:, 1], width)])
+    # Re-sample by arc length so the spacing is uniform again after the smoothing.
+    seg = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(2, int(s[-1] / step_m) + 1)
+    q = np.linspace(0, s[-1], n)
+    return np.column_stack([np.interp(q, s, out[:, 0]), np.interp(q, s, out[:, 1])])
