@@ -1,6 +1,19 @@
+"""graph stage."""
 from __future__ import annotations
 
+from enum import Enum
+
 from pydantic import BaseModel, ConfigDict, Field
+
+
+class RobustKernel(str, Enum):
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+class BaroSource(str, Enum):
+    FILTERED = "filtered"  # the floors stage's filtered height trace
+    RAW = "raw"  # the pressure samples
 
 
 class GraphConfig(BaseModel):
@@ -11,3 +24,57 @@ class GraphConfig(BaseModel):
     barometer_factors: bool = Field(True, description="barometric height factors")
     elevator_continuity: bool = Field(True, description="x, y, yaw tight across a ride")
     inter_floor_registration: bool = Field(True, description="global registration between floors")
+    same_floor_height_tie: bool = Field(
+        True, description="soft tie: consecutive keyframes of one floor share z (ground robots)"
+    )
+    gravity_factors: bool = Field(True, description="roll/pitch near gravity (IMU, or level)")
+    robust_kernel: RobustKernel = Field(
+        RobustKernel.HUBER, description="robust kernel for odometry edges (loops use Cauchy)"
+    )
+    loop_gate_m: float = Field(
+        1.5, description="drop a loop edge that disagrees with the mapping's map by more (m)"
+    )
+    loop_gate_deg: float = Field(15.0, description="... or by more than this rotation (deg)")
+    robust_k: float = Field(1.345, description="robust kernel width (whitened units)")
+    baro_source: BaroSource = Field(
+        BaroSource.FILTERED,
+        description="'filtered': the floors stage's filtered height trace (spikes and door/HVAC "
+        "transients removed); 'raw': the pressure samples",
+    )
+    baro_sigma_m: float = Field(0.15, description="barometric height noise per keyframe (m)")
+    baro_window_s: float = Field(0.5, description="pressure averaged +- this around a keyframe")
+    bias_random_walk_m_sqrt_s: float = Field(
+        0.01, description="barometer bias drift: sigma of the random walk per sqrt(second)"
+    )
+    height_tie_sigma_m: float = Field(0.02, description="same-floor z tie between keyframes")
+    elevator_sigma_xy_m: float = Field(0.3, description="x, y held through an elevator ride")
+    elevator_sigma_yaw_deg: float = Field(3.0, description="yaw held through an elevator ride")
+    transition_height: bool = Field(
+        True, description="the floors stage's height change across each transition as a z factor"
+    )
+    transition_sigma_z_m: float = Field(0.03, description="noise of that height change (m)")
+    gravity_sigma_deg: float = Field(1.0, description="roll/pitch from gravity")
+    prior_sigma: float = Field(1e-4, description="prior on the first keyframe (m, rad)")
+    interfloor_voxel_m: float = Field(0.1, description="voxel for inter-floor registration")
+    interfloor_band_m: tuple[float, float] = Field(
+        (0.5, 1.5), description="height band above each floor used to register floors"
+    )
+    interfloor_min_fitness: float = Field(
+        0.2, description="reject an inter-floor match with fewer overlapping points"
+    )
+    interfloor_ambiguity_ratio: float = Field(
+        0.9, description="reject when a distinct solution scores this close to the best"
+    )
+    interfloor_max_correction_m: float = Field(
+        1.0, description="reject a correction larger than this (m) as implausible"
+    )
+    interfloor_max_correction_deg: float = Field(
+        20.0, description="reject a yaw correction larger than this (deg) as implausible"
+    )
+    interfloor_sigma_xy_m: float = Field(0.01, description="inter-floor factor noise in x, y")
+    interfloor_sigma_yaw_deg: float = Field(0.05, description="inter-floor factor noise in yaw")
+    outlier_chi2_p: float = Field(
+        0.999, description="a factor whose Mahalanobis residual exceeds this chi2 quantile is an outlier"
+    )
+    max_iterations: int = Field(100, description="Levenberg-Marquardt iterations")
+    seed: int = Field(0, description="seed for RANSAC in inter-floor registration")

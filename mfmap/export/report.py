@@ -1,0 +1,145 @@
+"""report.html: one self-contained page (inline PNGs) a person reads after a build."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from typing import Any
+
+import numpy as np
+
+from mfmap.types import FloorSegmentation
+
+
+def _png_tag(png: bytes, alt: str, width: str = "100%") -> str:
+    data = base64.b64encode(png).decode()
+    return f'<img alt="{html.escape(alt)}" style="max-width:{width}" src="data:image/png;base64,{data}">'
+
+
+def _figure_png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def pressure_plot_png(seg: FloorSegmentation) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    t_s = (seg.stamp_ns - seg.stamp_ns[0]) / 1e9 if len(seg.stamp_ns) else np.zeros(0)
+    ax.plot(t_s, seg.height_raw_m, color="0.75", lw=0.6, label="raw")
+    ax.plot(t_s, seg.height_filtered_m, color="k", lw=1.0, label="filtered")
+    for floor in seg.floors:
+        for s, e in floor.visits:
+            x0 = (s - seg.stamp_ns[0]) / 1e9
+            x1 = (e - seg.stamp_ns[0]) / 1e9
+            ax.axvspan(x0, x1, color=f"C{floor.id % 10}", alpha=0.15)
+            ax.text((x0 + x1) / 2, floor.elevation_m, f"F{floor.id}", ha="center", va="bottom")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("barometric height [m]")
+    ax.legend(loc="upper right")
+    return _figure_png(fig)
+
+
+def side_view_png(points: np.ndarray, floor: np.ndarray, max_points: int = 60_000) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(10, 4))
+    if points.shape[0]:
+        step = max(1, points.shape[0] // max_points)
+        pts, fl = points[::step], floor[::step]
+        for f in np.unique(fl):
+            sel = fl == f
+            ax.scatter(pts[sel, 0], pts[sel, 2], s=0.2, color=f"C{int(f) % 10}", label=f"floor {int(f)}")
+        ax.legend(loc="upper right", markerscale=20)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("z [m]")
+    ax.set_aspect("equal")
+    ax.set_title("side view of the stacked floors")
+    return _figure_png(fig)
+
+
+def _table(rows: list[list[Any]], header: list[str]) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def html_report(
+    title: str,
+    report: dict[str, Any],
+    floors_doc: dict[str, Any],
+    pressure_png: bytes | None,
+    grid_pngs: dict[int, bytes],
+    side_png: bytes,
+) -> str:
+    """The page: numbers, pressure trace, side view, one grid per floor."""
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title>",
+        "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}"
+        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;"
+        "text-align:right}th{background:#eee}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+    ]
+    summary = report.get("summary", {})
+    parts.append(_table([[k, v] for k, v in summary.items()], ["", "value"]))
+    parts.append("<h2>Floors</h2>")
+    parts.append(
+        _table(
+            [[f["id"], f["elevation_m"], f["pressure_pa"], len(f["visits"]), f["connectors"]]
+             for f in floors_doc["floors"]],
+            ["floor", "elevation [m]", "pressure [Pa]", "visits", "connectors"],
+        )
+    )
+    parts.append(
+        _table(
+            [[t["kind"], t["from"], t["to"], round(t["t_end"] - t["t_start"], 1), t["height_change_m"],
+              t.get("x", ""), t.get("y", "")] for t in floors_doc["transitions"]],
+            ["transition", "from", "to", "duration [s]", "height change [m]", "x", "y"],
+        )
+    )
+    graph = report.get("graph", {})
+    factors = graph.get("factors", {})
+    parts.append("<h2>Factor graph</h2>")
+    parts.append(
+        _table(
+            [[k, v["count"], v["error_initial"], v["error_final"], v["outliers"], v["rejected"]]
+             for k, v in factors.items()],
+            ["factor", "count", "error before", "error after", "outliers", "rejected"],
+        )
+    )
+    if graph.get("inter_floor"):
+        parts.append(
+            _table(
+                [[m["lower"], m["upper"], m["accepted"], m["reason"], m["fitness"], m["dx_m"], m["dy_m"],
+                  m["dyaw_deg"]] for m in graph["inter_floor"]],
+                ["lower", "upper", "accepted", "reason", "fitness", "dx [m]", "dy [m]", "dyaw [deg]"],
+            )
+        )
+    timings = report.get("timings_s", {})
+    parts.append("<h2>Timings</h2>")
+    parts.append(_table([[k, v] for k, v in timings.items()], ["stage", "seconds"]))
+    if report.get("warnings"):
+        parts.append("<h2>Warnings</h2><ul>")
+        parts += [f"<li>{html.escape(w)}</li>" for w in report["warnings"]]
+        parts.append("</ul>")
+    if pressure_png is not None:
+        parts.append("<h2>Pressure trace and floors</h2>" + _png_tag(pressure_png, "pressure trace"))
+    parts.append("<h2>Side view</h2>" + _png_tag(side_png, "side view"))
+    for floor_id, png in sorted(grid_pngs.items()):
+        parts.append(f"<h2>Floor {floor_id} grid</h2>" + _png_tag(png, f"floor {floor_id} grid"))
+    parts.append("</body></html>")
+    return "\n".join(parts)

@@ -1,0 +1,597 @@
+"""The building's factor graph: one gtsam.NonlinearFactorGraph for all floors, optimised by LM.
+
+Variables: Pose3 x<keyframe id> per keyframe, a barometer height bias b<k> per keyframe (in time
+order) drifting as a random walk. Factors, by kind:
+- prior: the first keyframe fixes the world frame;
+- odometry / loop: the mapping stage's edges, robust (Huber or Cauchy);
+- barometer: gtsam.BarometricFactor per keyframe (z = height(pressure) - bias);
+- bias_walk: BetweenFactorDouble between consecutive biases (sigma grows with sqrt(dt));
+- elevator: x, y, yaw held across a ride, z free;
+- interfloor: global registration of adjacent floors, x, y, yaw only;
+- height_tie: consecutive keyframes of one floor share z (ground robots);
+- gravity: roll/pitch from the IMU's gravity (or level when there is no IMU);
+- bridge: a weak link (z free) only where nothing else connects two parts of the graph.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2
+
+from mfmap.graph.barometer import pressure_at, pressure_to_height_m
+from mfmap.graph.config import BaroSource, GraphConfig, RobustKernel
+from mfmap.graph.interfloor import FloorMatch, register_floors
+from mfmap.progress import NullProgress, Progress
+from mfmap.types import F64, FloorSegmentation, Keyframe, PoseEdge, PressureSeries, TransitionKind
+
+logger = logging.getLogger(__name__)
+
+# A sigma that leaves a component nearly free (z across a ride, which the barometer sets) while
+# keeping the problem well posed when the barometer is switched off.
+FREE_SIGMA = 10.0
+
+
+def X(i: int) -> int:
+    return int(gtsam.symbol("x", i))
+
+
+def B(k: int) -> int:
+    return int(gtsam.symbol("b", k))
+
+
+def Fl(floor: int) -> int:
+    return int(gtsam.symbol("f", floor))
+
+
+@dataclass
+class FactorStats:
+    """Per factor kind: how many, their summed error before/after, how many are outliers."""
+
+    count: int = 0
+    error_initial: float = 0.0
+    error_final: float = 0.0
+    outliers: int = 0
+    rejected: int = 0
+    max_mahalanobis: float = 0.0
+
+    def to_json(self) -> dict[str, float | int]:
+        return {
+            "count": self.count,
+            "error_initial": round(self.error_initial, 6),
+            "error_final": round(self.error_final, 6),
+            "outliers": self.outliers,
+            "rejected": self.rejected,
+            "max_mahalanobis": round(self.max_mahalanobis, 4),
+        }
+
+
+@dataclass
+class GraphResult:
+    """Optimised keyframe poses (id -> 4x4 base-in-world) and what the graph did."""
+
+    poses: dict[int, F64]
+    initial_poses: dict[int, F64]
+    bias_m: dict[int, float]
+    stats: dict[str, FactorStats]
+    floor_matches: list[FloorMatch]
+    floor_z_m: dict[int, float]  # median optimised keyframe z per floor
+    iterations: int
+    error_initial: float
+    error_final: float
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "iterations": self.iterations,
+            "error_initial": round(self.error_initial, 6),
+            "error_final": round(self.error_final, 6),
+            "seconds": round(self.seconds, 3),
+            "factors": {k: v.to_json() for k, v in self.stats.items()},
+            "inter_floor": [
+                {
+                    "lower": m.lower,
+                    "upper": m.upper,
+                    "accepted": m.accepted,
+                    "reason": m.reason,
+                    "fitness": round(m.fitness, 4),
+                    "runner_up_fitness": round(m.runner_up_fitness, 4),
+                    "rmse_m": round(m.rmse_m, 4),
+                    "dx_m": round(m.dx_m, 4),
+                    "dy_m": round(m.dy_m, 4),
+                    "dyaw_deg": round(m.dyaw_deg, 4),
+                }
+                for m in self.floor_matches
+            ],
+            "floor_z_m": {str(k): round(v, 4) for k, v in self.floor_z_m.items()},
+            "warnings": list(self.warnings),
+        }
+
+
+@dataclass
+class _Entry:
+    kind: str
+    factor: Any
+    sqrt_info: F64  # whitening of the unwhitened error (Mahalanobis for outlier counting)
+
+
+def _consistent(edge: PoseEdge, initial: dict[int, F64], config: GraphConfig) -> bool:
+    """Does a loop edge agree with the initial relative pose within the gate?"""
+    rel = np.linalg.inv(initial[edge.i]) @ initial[edge.j]
+    delta = np.linalg.inv(np.asarray(edge.measured)) @ rel
+    angle = math.degrees(math.acos(float(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    return bool(np.linalg.norm(delta[:3, 3]) <= config.loop_gate_m and angle <= config.loop_gate_deg)
+
+
+def _robust(config: GraphConfig, model: Any, kernel_name: RobustKernel | None = None) -> Any:
+    kernel: Any
+    if (kernel_name or config.robust_kernel) == RobustKernel.CAUCHY:
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(config.robust_k)
+    else:
+        kernel = gtsam.noiseModel.mEstimator.Huber.Create(config.robust_k)
+    return gtsam.noiseModel.Robust.Create(kernel, model)
+
+
+def _sqrt_info_from_sigmas(sigmas: F64) -> F64:
+    return np.diag(1.0 / np.asarray(sigmas, dtype=np.float64))
+
+
+def _relative_level(pose_a: F64, pose_b: F64, dz_world_m: float | None) -> F64:
+    """pose_a^-1 pose_b, with the world height change replaced by dz_world_m when given."""
+    b = pose_b.copy()
+    if dz_world_m is not None:
+        b[2, 3] = pose_a[2, 3] + dz_world_m
+    return np.asarray(np.linalg.inv(pose_a) @ b)
+
+
+class _Builder:
+    def __init__(self, config: GraphConfig) -> None:
+        self.config = config
+        self.graph = gtsam.NonlinearFactorGraph()
+        self.entries: list[_Entry] = []
+        self.stats: dict[str, FactorStats] = {}
+        self.links: list[tuple[int, int]] = []
+
+    def add(self, kind: str, factor: Any, sqrt_info: F64) -> None:
+        self.graph.add(factor)
+        self.entries.append(_Entry(kind, factor, sqrt_info))
+        self.stats.setdefault(kind, FactorStats()).count += 1
+
+    def between(
+        self,
+        kind: str,
+        i: int,
+        j: int,
+        measured: F64,
+        sigmas: Sequence[float],
+        robust: bool = True,
+        kernel: RobustKernel | None = None,
+        links: bool = True,
+    ) -> None:
+        """A BetweenFactorPose3; `links` says whether it ties x, y and yaw (graph connectivity)."""
+        sig = np.asarray(sigmas, dtype=np.float64)
+        model = gtsam.noiseModel.Diagonal.Sigmas(sig)
+        if robust:
+            model = _robust(self.config, model, kernel)
+        self.add(kind, gtsam.BetweenFactorPose3(X(i), X(j), gtsam.Pose3(measured), model), _sqrt_info_from_sigmas(sig))
+        if links:
+            self.links.append((i, j))
+
+    def reject(self, kind: str) -> None:
+        self.stats.setdefault(kind, FactorStats()).rejected += 1
+
+
+def _edge_model(config: GraphConfig, information: F64, kernel_name: RobustKernel) -> tuple[Any, F64]:
+    info = 0.5 * (information + information.T)
+    # Guard against a singular matrix from the mapping stage: floor the eigenvalues.
+    w, v = np.linalg.eigh(info)
+    w = np.maximum(w, 1e-6)
+    info = (v * w) @ v.T
+    sqrt_info = np.asarray(np.linalg.cholesky(info).T)
+    return _robust(config, gtsam.noiseModel.Gaussian.Information(info), kernel_name), sqrt_info
+
+
+def floor_points(
+    keyframes: Sequence[Keyframe],
+    poses: dict[int, F64],
+    floor_id: int,
+    band_m: tuple[float, float],
+    floor_z_m: float,
+) -> np.ndarray:
+    """World points of a floor's keyframes within a height band, z made floor-relative."""
+    chunks = []
+    for kf in keyframes:
+        if kf.floor_id != floor_id or len(kf.cloud) == 0:
+            continue
+        pose = poses[kf.id]
+        pts = kf.cloud.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+        rel = pts[:, 2] - floor_z_m
+        keep = (rel >= band_m[0]) & (rel <= band_m[1])
+        sel = pts[keep]
+        sel[:, 2] -= floor_z_m
+        chunks.append(sel)
+    if not chunks:
+        return np.zeros((0, 3))
+    return np.concatenate(chunks)
+
+
+def _floor_z(keyframes: Sequence[Keyframe], poses: dict[int, F64]) -> dict[int, float]:
+    by_floor: dict[int, list[float]] = {}
+    for kf in keyframes:
+        if kf.floor_id >= 0:
+            by_floor.setdefault(kf.floor_id, []).append(float(poses[kf.id][2, 3]))
+    return {f: float(np.median(z)) for f, z in sorted(by_floor.items())}
+
+
+def _components(ids: list[int], links: list[tuple[int, int]]) -> dict[int, int]:
+    parent = {i: i for i in ids}
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in links:
+        if a in parent and b in parent:
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    return {i: find(i) for i in ids}
+
+
+def optimize_building(
+    keyframes: Sequence[Keyframe],
+    edges: Sequence[PoseEdge],
+    segmentation: FloorSegmentation | None,
+    pressure: PressureSeries | None,
+    config: GraphConfig,
+    temperature_k: float = 288.15,
+    gravity_body: dict[int, F64] | None = None,
+    progress: Progress | None = None,
+) -> GraphResult:
+    """Build the building's factor graph from the mapping stage's keyframes and edges; optimise.
+
+    `gravity_body` maps a keyframe id to the measured up direction (specific force) in the base
+    frame; keyframes without one are assumed level. Returns optimised poses; keyframes are not
+    modified.
+    """
+    started = time.perf_counter()
+    progress = progress or NullProgress()
+    warnings: list[str] = []
+    if not keyframes:
+        raise ValueError("optimize_building needs at least one keyframe")
+    kfs = sorted(keyframes, key=lambda k: (k.stamp_ns, k.id))
+    ids = [k.id for k in kfs]
+    initial_poses = {k.id: np.asarray(k.pose, dtype=np.float64).copy() for k in kfs}
+    builder = _Builder(config)
+    values = gtsam.Values()
+    for kf in kfs:
+        values.insert(X(kf.id), gtsam.Pose3(initial_poses[kf.id]))
+
+    with progress.stage("graph", total=3) as bar:
+        # Prior: the first keyframe fixes the world frame.
+        prior_sig = np.full(6, config.prior_sigma)
+        builder.add(
+            "prior",
+            gtsam.PriorFactorPose3(X(kfs[0].id), gtsam.Pose3(initial_poses[kfs[0].id]),
+                                   gtsam.noiseModel.Diagonal.Sigmas(prior_sig)),
+            _sqrt_info_from_sigmas(prior_sig),
+        )
+
+        known = set(ids)
+        for edge in edges:
+            if edge.i not in known or edge.j not in known:
+                warnings.append(f"graph: edge {edge.i}->{edge.j} refers to an unknown keyframe")
+                continue
+            if edge.kind != "odometry" and not _consistent(edge, initial_poses, config):
+                # A loop that contradicts the mapping stage's own map by metres or tens of
+                # degrees is a false match (a similar place), not drift: a robust kernel would
+                # still pull on it, so it is left out.
+                builder.reject(edge.kind)
+                continue
+            model, sqrt_info = _edge_model(
+                config, np.asarray(edge.information, dtype=np.float64),
+                RobustKernel.CAUCHY if edge.kind != "odometry" else config.robust_kernel,
+            )
+            factor = gtsam.BetweenFactorPose3(X(edge.i), X(edge.j), gtsam.Pose3(edge.measured), model)
+            builder.add(edge.kind, factor, sqrt_info)
+            builder.links.append((edge.i, edge.j))
+
+        _add_barometer(
+            builder, values, kfs, initial_poses, pressure, segmentation, config, temperature_k, warnings
+        )
+        _add_elevator(builder, kfs, initial_poses, segmentation, config)
+        if config.same_floor_height_tie:
+            _add_height_ties(builder, values, kfs, initial_poses)
+        if config.gravity_factors:
+            sig = math.radians(config.gravity_sigma_deg)
+            up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+            for kf in kfs:
+                g = None if gravity_body is None else gravity_body.get(kf.id)
+                measured = up if g is None else gtsam.Unit3(np.asarray(g, dtype=np.float64))
+                model = gtsam.noiseModel.Isotropic.Sigma(2, sig)
+                builder.add("gravity", gtsam.AttitudeFactorPose3(X(kf.id), up, model, measured),
+                            np.eye(2) / sig)
+        bar.advance()
+
+        # Phase 1: every factor but the inter-floor ones, so each floor's map is consistent
+        # before floors are registered against each other.
+        _bridge_components(builder, kfs, initial_poses, warnings)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(config.max_iterations)
+        params.setRelativeErrorTol(1e-7)
+        params.setAbsoluteErrorTol(1e-9)
+        optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, values, params)
+        result = optimizer.optimize()
+        iterations = int(optimizer.iterations())
+        bar.advance()
+
+        # Phase 2: register adjacent floors on the phase-1 maps, add the factors, optimise again.
+        matches: list[FloorMatch] = []
+        floor_ids = sorted({k.floor_id for k in kfs if k.floor_id >= 0})
+        if config.inter_floor_registration and len(floor_ids) > 1:
+            phase1 = {i: np.asarray(result.atPose3(X(i)).matrix()) for i in ids}
+            matches = _add_interfloor(builder, kfs, phase1, floor_ids, segmentation, config)
+            for m in matches:
+                if not m.accepted:
+                    warnings.append(f"graph: floors {m.lower}/{m.upper} not registered ({m.reason})")
+            if any(m.accepted for m in matches):
+                optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, result, params)
+                result = optimizer.optimize()
+                iterations += int(optimizer.iterations())
+        bar.advance()
+
+    threshold = {d: float(chi2.ppf(config.outlier_chi2_p, d)) for d in (1, 2, 6)}
+    for entry in builder.entries:
+        stats = builder.stats[entry.kind]
+        stats.error_initial += float(entry.factor.error(values))
+        stats.error_final += float(entry.factor.error(result))
+        residual = np.asarray(entry.factor.unwhitenedError(result), dtype=np.float64)
+        d2 = float(np.sum((entry.sqrt_info @ residual) ** 2))
+        stats.max_mahalanobis = max(stats.max_mahalanobis, math.sqrt(d2))
+        if d2 > threshold.get(len(residual), float(chi2.ppf(config.outlier_chi2_p, len(residual)))):
+            stats.outliers += 1
+
+    poses = {i: np.asarray(result.atPose3(X(i)).matrix(), dtype=np.float64) for i in ids}
+    bias = {k: float(result.atDouble(B(k))) for k in range(len(kfs)) if result.exists(B(k))}
+    return GraphResult(
+        poses=poses,
+        initial_poses=initial_poses,
+        bias_m=bias,
+        stats=builder.stats,
+        floor_matches=matches,
+        floor_z_m=_floor_z(kfs, poses),
+        iterations=iterations,
+        error_initial=float(builder.graph.error(values)),
+        error_final=float(builder.graph.error(result)),
+        seconds=time.perf_counter() - started,
+        warnings=warnings,
+    )
+
+
+def _add_barometer(
+    builder: _Builder,
+    values: Any,
+    kfs: list[Keyframe],
+    initial: dict[int, F64],
+    pressure: PressureSeries | None,
+    seg: FloorSegmentation | None,
+    config: GraphConfig,
+    temperature_k: float,
+    warnings: list[str],
+) -> None:
+    if not config.barometer_factors:
+        return
+    if pressure is None or len(pressure) == 0:
+        warnings.append("graph: no barometer, barometric factors skipped")
+        return
+    stamps = np.array([k.stamp_ns for k in kfs], dtype=np.int64)
+    if config.baro_source == BaroSource.FILTERED and seg is not None and len(seg.stamp_ns) > 1:
+        # The floors stage's offline-filtered trace: spikes and door/HVAC transients removed.
+        filtered = PressureSeries(seg.stamp_ns, np.asarray(seg.height_filtered_m, dtype=np.float64))
+        height = pressure_at(filtered, stamps, config.baro_window_s)
+    else:
+        p_pa = pressure_at(pressure, stamps, config.baro_window_s)
+        height = pressure_to_height_m(p_pa, float(pressure.pressure_pa[0]), temperature_k)
+    converter = gtsam.BarometricFactor()
+    model = _robust(config, gtsam.noiseModel.Isotropic.Sigma(1, config.baro_sigma_m))
+    for k, kf in enumerate(kfs):
+        baro_kpa = float(converter.baroOut(float(height[k])))
+        factor = gtsam.BarometricFactor(X(kf.id), B(k), baro_kpa, model)
+        builder.add("barometer", factor, np.eye(1) / config.baro_sigma_m)
+        values.insert(B(k), float(height[k] - initial[kf.id][2, 3]))
+    builder.add(
+        "bias_prior",
+        gtsam.PriorFactorDouble(B(0), float(height[0] - initial[kfs[0].id][2, 3]),
+                                gtsam.noiseModel.Isotropic.Sigma(1, 10.0)),
+        np.eye(1) / 10.0,
+    )
+    for k in range(len(kfs) - 1):
+        dt_s = max((kfs[k + 1].stamp_ns - kfs[k].stamp_ns) / 1e9, 1e-3)
+        sig = config.bias_random_walk_m_sqrt_s * math.sqrt(dt_s)
+        builder.add(
+            "bias_walk",
+            gtsam.BetweenFactorDouble(B(k), B(k + 1), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sig)),
+            np.eye(1) / sig,
+        )
+
+
+def _ride_ends(kfs: list[Keyframe], start_ns: int, end_ns: int) -> tuple[Keyframe, Keyframe] | None:
+    before = [k for k in kfs if k.stamp_ns <= start_ns]
+    after = [k for k in kfs if k.stamp_ns >= end_ns]
+    if not before or not after:
+        return None
+    return before[-1], after[0]
+
+
+def _add_elevator(
+    builder: _Builder,
+    kfs: list[Keyframe],
+    initial: dict[int, F64],
+    seg: FloorSegmentation | None,
+    config: GraphConfig,
+) -> None:
+    """Per transition: the floors stage's height change (z only) and, for elevator rides,
+    x, y and yaw held (z free). Two factors, so an x, y, yaw disagreement that the robust kernel
+    turns down does not also turn down the height."""
+    if seg is None:
+        return
+    yaw = math.radians(config.elevator_sigma_yaw_deg)
+    sig_xy = config.elevator_sigma_xy_m
+    tilt = math.radians(config.gravity_sigma_deg) * 5.0
+    for tr in seg.transitions:
+        ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
+        if ends is None:
+            continue
+        a, b = ends
+        measured = _relative_level(initial[a.id], initial[b.id], tr.height_change_m)
+        if config.transition_height:
+            builder.between(
+                "transition_z", a.id, b.id, measured,
+                [FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA,
+                 config.transition_sigma_z_m],
+                robust=False,
+                links=False,
+            )
+        if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
+            # The mapping stage holds x, y and yaw through the ride: the initial relative pose
+            # is the measurement.
+            # Cauchy: when the ride's ends disagree with the floors' registration by many sigma
+            # (a keyframe at the cabin door with a wrong pose), the factor lets go instead of
+            # bending the floor with a constant (Huber) pull.
+            builder.between(
+                "elevator", a.id, b.id, measured, [tilt, tilt, yaw, sig_xy, sig_xy, FREE_SIGMA],
+                kernel=RobustKernel.CAUCHY,
+            )
+
+
+def _add_height_ties(
+    builder: _Builder, values: Any, kfs: list[Keyframe], initial: dict[int, F64]
+) -> None:
+    """Every keyframe of a floor shares that floor's z: a floor variable f<id> tied to each.
+
+    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. Only the
+    z component is tight; the floor variable's x, y and rotation are left nearly free.
+    """
+    sig = builder.config.height_tie_sigma_m
+    sigmas = np.array([FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA, sig])
+    up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
+    anchors: dict[int, F64] = {}
+    for kf in kfs:
+        if kf.floor_id < 0:
+            continue
+        if kf.floor_id not in anchors:
+            anchor = np.eye(4)
+            anchor[:3, 3] = initial[kf.id][:3, 3]
+            anchors[kf.floor_id] = anchor
+            values.insert(Fl(kf.floor_id), gtsam.Pose3(anchor))
+            # Keep the floor variable level so its local z is the world z.
+            model = gtsam.noiseModel.Isotropic.Sigma(2, 1e-3)
+            builder.add("floor_level", gtsam.AttitudeFactorPose3(Fl(kf.floor_id), up, model, up),
+                        np.eye(2) / 1e-3)
+        measured = _relative_level(anchors[kf.floor_id], initial[kf.id], 0.0)
+        model = _robust(builder.config, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+        factor = gtsam.BetweenFactorPose3(Fl(kf.floor_id), X(kf.id), gtsam.Pose3(measured), model)
+        builder.add("height_tie", factor, _sqrt_info_from_sigmas(sigmas))
+
+
+def _anchors(
+    kfs: list[Keyframe], lower: int, upper: int, seg: FloorSegmentation | None
+) -> tuple[Keyframe, Keyframe]:
+    """The middle keyframes of the two visits joined by a ride between the floors.
+
+    Not the keyframes at the ride itself: those are taken in and at the cabin, where the mapping
+    stage's poses are least reliable, and an anchor there would carry its error to the floor.
+    """
+    low = [k for k in kfs if k.floor_id == lower]
+    up = [k for k in kfs if k.floor_id == upper]
+
+    def middle_of_visit(cands: list[Keyframe], near_ns: int) -> Keyframe:
+        closest = min(cands, key=lambda k: abs(k.stamp_ns - near_ns))
+        same = [k for k in cands if k.visit == closest.visit]
+        return same[len(same) // 2]
+
+    if seg is not None:
+        for tr in seg.transitions:
+            if {tr.from_floor, tr.to_floor} == {lower, upper}:
+                mid = (tr.start_ns + tr.end_ns) // 2
+                return middle_of_visit(low, mid), middle_of_visit(up, mid)
+    return low[len(low) // 2], up[len(up) // 2]
+
+
+def _add_interfloor(
+    builder: _Builder,
+    kfs: list[Keyframe],
+    initial: dict[int, F64],
+    floor_ids: list[int],
+    seg: FloorSegmentation | None,
+    config: GraphConfig,
+) -> list[FloorMatch]:
+    floor_z = _floor_z(kfs, initial)
+    clouds = {
+        f: floor_points(kfs, initial, f, config.interfloor_band_m, floor_z[f]) for f in floor_ids
+    }
+    if any(len(c) < 200 for c in clouds.values()):
+        # A 2D scanner's returns all lie at its own height, usually below the band: use them all.
+        clouds = {f: floor_points(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
+    yaw = math.radians(config.interfloor_sigma_yaw_deg)
+    sig_xy = config.interfloor_sigma_xy_m
+    tilt = math.radians(config.gravity_sigma_deg) * 5.0
+    matches = []
+    for lower, upper in itertools.pairwise(floor_ids):
+        match = register_floors(
+            clouds[lower],
+            clouds[upper],
+            lower,
+            upper,
+            voxel_m=config.interfloor_voxel_m,
+            min_fitness=config.interfloor_min_fitness,
+            ambiguity_ratio=config.interfloor_ambiguity_ratio,
+            max_correction_m=config.interfloor_max_correction_m,
+            max_correction_deg=config.interfloor_max_correction_deg,
+            seed=config.seed,
+        )
+        matches.append(match)
+        if not match.accepted:
+            builder.reject("interfloor")
+            continue
+        a, b = _anchors(kfs, lower, upper, seg)
+        target_b = match.correction @ initial[b.id]
+        measured = _relative_level(initial[a.id], target_b, None)
+        builder.between(
+            "interfloor", a.id, b.id, measured, [tilt, tilt, yaw, sig_xy, sig_xy, FREE_SIGMA],
+            robust=False,
+        )
+    return matches
+
+
+def _bridge_components(
+    builder: _Builder, kfs: list[Keyframe], initial: dict[int, F64], warnings: list[str]
+) -> None:
+    """Link parts of the graph nothing else connects, weakly, at their initial relative pose."""
+    ids = [k.id for k in kfs]
+    comp = _components(ids, builder.links)
+    seen = {comp[ids[0]]}
+    for prev, kf in itertools.pairwise(kfs):
+        root = comp[kf.id]
+        if root in seen:
+            continue
+        seen.add(root)
+        measured = _relative_level(initial[prev.id], initial[kf.id], None)
+        builder.between("bridge", prev.id, kf.id, measured, [0.1, 0.1, 0.1, 1.0, 1.0, FREE_SIGMA], robust=False)
+        warnings.append(
+            f"graph: keyframes {prev.id} and {kf.id} had no measurement linking them; "
+            "bridged weakly at the mapping stage's relative pose"
+        )
+
+

@@ -1,0 +1,503 @@
+"""`mfmap build`: log -> floors -> per-floor mapping -> building graph -> exports.
+
+Reads like the pipeline it runs. Outputs are written into `OUT.partial-XXXX/` next to OUT and
+renamed into place only when everything is written, so an interrupted build never leaves a
+folder that looks complete; an existing OUT is replaced only with `force`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import resource
+import shutil
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from mfmap.config import MfmapConfig, dump_config
+from mfmap.errors import MissingDataError, OutputError
+from mfmap.progress import NullProgress, Progress
+from mfmap.types import (
+    F64,
+    Extrinsics,
+    Floor,
+    FloorSegmentation,
+    ImuSeries,
+    Keyframe,
+    PressureSeries,
+    Role,
+    TransitionKind,
+)
+
+if TYPE_CHECKING:
+    from rich.console import RenderableType
+
+    from mfmap.export.mapdata import MapAccumulator
+    from mfmap.export.write import Trajectory
+    from mfmap.graph.optimize import GraphResult
+    from mfmap.ingest.source import LogSource
+    from mfmap.types import MappingResult
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class BuildResult:
+    """What `mfmap build` did and where its outputs are."""
+
+    log: Path
+    out: Path
+    log_duration_s: float
+    elapsed_s: float
+    timings_s: dict[str, float]
+    floors: list[dict[str, Any]]
+    transitions: list[dict[str, Any]]
+    connectors: list[dict[str, Any]]
+    counts: dict[str, int]
+    graph: dict[str, Any]
+    files: list[str]
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def realtime_factor(self) -> float:
+        """Log duration / build time (above 1: faster than real time)."""
+        return self.log_duration_s / self.elapsed_s if self.elapsed_s > 0 else math.inf
+
+
+def build(
+    log: Path,
+    out: Path,
+    cfg: MfmapConfig,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> BuildResult:
+    """Build the building map of `log` into the folder `out`."""
+    from mfmap.export.write import write_outputs
+    from mfmap.ingest import open_log
+    from mfmap.mapping import map_floors
+
+    started = time.perf_counter()
+    progress = progress or NullProgress()
+    log, out = Path(log), Path(out)
+    _check_output(out, force)
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    partial = _make_partial(out)
+    try:
+        with open_log(log, cfg.ingest) as src:
+            warnings += [f"ingest: {w}" for w in src.warnings]
+            if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
+                raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
+            extrinsics = src.extrinsics()
+            log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
+
+            t0 = time.perf_counter()
+            pressure, seg = segment_floors(src, cfg, warnings)
+            warnings += [f"floors: {w}" for w in seg.warnings]
+            timings["floors"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            mapping = map_floors(src, seg, cfg.mapping, extrinsics, progress)
+            warnings += [f"mapping: {w}" for w in mapping.warnings]
+            timings["mapping"] = time.perf_counter() - t0
+            if not mapping.keyframes:
+                raise MissingDataError("no keyframes: the lidar gave no usable scans", log)
+
+            t0 = time.perf_counter()
+            graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, progress)
+            warnings += graph.warnings
+            timings["graph"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress)
+            timings["accumulate"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        counts = {
+            "floors": len(seg.floors),
+            "transitions": len(seg.transitions),
+            "keyframes": len(mapping.keyframes),
+            "edges": len(mapping.edges),
+            "loop_edges": sum(1 for e in mapping.edges if e.kind == "loop"),
+            "scans": len(mapping.scan_poses),
+            "scans_exported": maps.scans,
+            "pressure_samples": len(pressure) if pressure is not None else 0,
+        }
+        report: dict[str, Any] = {
+            "log": str(log),
+            "summary": {
+                "floors": len(seg.floors),
+                "transitions": len(seg.transitions),
+                "log_duration_s": round(log_duration_s, 3),
+                "keyframes": len(mapping.keyframes),
+            },
+            "counts": counts,
+            "timings_s": {k: round(v, 3) for k, v in timings.items()},
+            "mapping": {k: float(v) for k, v in mapping.stats.items()},
+            "graph": graph.to_json(),
+            "warnings": warnings,
+        }
+        with progress.stage("export", total=None):
+            summary = write_outputs(
+                partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
+                title=f"mfmap build of {log.name}", html=cfg.export.html_report,
+            )
+        timings["export"] = time.perf_counter() - t0
+        elapsed = time.perf_counter() - started
+        _finish_report(partial, timings, elapsed, log_duration_s)
+        _commit(partial, out)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)
+        raise
+    doc = summary.floors_doc
+    return BuildResult(
+        log=log,
+        out=out,
+        log_duration_s=log_duration_s,
+        elapsed_s=elapsed,
+        timings_s=timings,
+        floors=doc["floors"],
+        transitions=doc["transitions"],
+        connectors=doc["connectors"],
+        counts=counts,
+        graph=graph.to_json(),
+        files=summary.files,
+        warnings=warnings,
+    )
+
+
+# ----- stages ------------------------------------------------------------------------------
+
+
+def segment_floors(
+    src: LogSource, cfg: MfmapConfig, warnings: list[str]
+) -> tuple[PressureSeries | None, FloorSegmentation]:
+    """Barometer -> floors; a log without barometer becomes one floor, with a warning."""
+    from mfmap.floors.motion import motion_from_imu, motion_from_odometry
+    from mfmap.floors.segment import segment_pressure
+
+    try:
+        pressure = src.pressure()
+    except MissingDataError:
+        warnings.append("no barometer in the log: building a single-floor map")
+        return None, single_floor(src.start_ns, src.end_ns)
+    odom = src.odometry()
+    imu = src.imu()
+    motion = None
+    if odom is not None and len(odom) > 1:
+        motion = motion_from_odometry(odom, cfg.floors)
+    elif imu is not None and len(imu) > 1:
+        motion = motion_from_imu(imu, cfg.floors)
+    return pressure, segment_pressure(pressure, motion, cfg.floors)
+
+
+def single_floor(start_ns: int, end_ns: int) -> FloorSegmentation:
+    """One floor spanning the whole log (no barometer)."""
+    stamps = np.array([start_ns, end_ns], dtype=np.int64)
+    zeros = np.zeros(2)
+    return FloorSegmentation(
+        floors=(Floor(0, 0.0, 0.0, ((start_ns, end_ns),)),),
+        transitions=(),
+        stamp_ns=stamps,
+        height_raw_m=zeros,
+        height_filtered_m=zeros,
+        floor_of_sample=np.zeros(2, dtype=np.int32),
+    )
+
+
+def gravity_at_keyframes(
+    imu: ImuSeries | None, keyframes: list[Keyframe], extrinsics: Extrinsics, window_s: float = 0.5
+) -> dict[int, F64]:
+    """Mean specific force (the up direction) in the base frame around each keyframe."""
+    if imu is None or len(imu) == 0:
+        return {}
+    rot = extrinsics.get(imu.frame_id)
+    rot3 = np.eye(3) if rot is None else rot[:3, :3]
+    csum = np.concatenate([np.zeros((1, 3)), np.cumsum(imu.accel_m_s2, axis=0)])
+    half = int(window_s * 1e9)
+    out: dict[int, F64] = {}
+    for kf in keyframes:
+        lo = int(np.searchsorted(imu.stamp_ns, kf.stamp_ns - half))
+        hi = int(np.searchsorted(imu.stamp_ns, kf.stamp_ns + half, side="right"))
+        if hi - lo < 5:
+            continue
+        mean = (csum[hi] - csum[lo]) / (hi - lo)
+        norm = float(np.linalg.norm(mean))
+        # Only when the robot is close to unaccelerated is the mean a direction of gravity.
+        if abs(norm - 9.81) < 0.5:
+            out[kf.id] = rot3 @ (mean / norm)
+    return out
+
+
+def optimise(
+    mapping: MappingResult,
+    seg: FloorSegmentation,
+    pressure: PressureSeries | None,
+    imu: ImuSeries | None,
+    extrinsics: Extrinsics,
+    cfg: MfmapConfig,
+    progress: Progress,
+) -> GraphResult:
+    from mfmap.graph.optimize import optimize_building
+
+    gravity = gravity_at_keyframes(imu, mapping.keyframes, extrinsics)
+    return optimize_building(
+        mapping.keyframes,
+        mapping.edges,
+        seg if pressure is not None else None,
+        pressure,
+        cfg.graph,
+        temperature_k=cfg.floors.temperature_k,
+        gravity_body=gravity,
+        progress=progress,
+    )
+
+
+def accumulate(
+    src: LogSource,
+    seg: FloorSegmentation,
+    mapping: MappingResult,
+    graph: GraphResult,
+    extrinsics: Extrinsics,
+    cfg: MfmapConfig,
+    progress: Progress,
+) -> tuple[Trajectory, MapAccumulator]:
+    """Each floor's cloud and grid from every scan at its optimised pose (or the keyframes)."""
+    from mfmap.export.config import CloudSource
+    from mfmap.export.mapdata import MapAccumulator
+    from mfmap.export.write import optimised_trajectory
+
+    trajectory = optimised_trajectory(mapping, graph.poses)
+    maps = MapAccumulator(cfg.export, dict(graph.floor_z_m))
+    if cfg.export.cloud_source == CloudSource.KEYFRAMES or trajectory.stamps_ns.shape[0] == 0:
+        maps.min_hits = 1  # a keyframe cloud already merges several scans
+        for kf in sorted(mapping.keyframes, key=lambda k: k.stamp_ns):
+            maps.add(kf.floor_id, graph.poses[kf.id], kf.cloud, force_view=True)
+        return trajectory, maps
+    index = {int(s): i for i, s in enumerate(trajectory.stamps_ns)}
+    cabins = _cabins(seg, trajectory, cfg)
+    shafts = _distinct_cabins(cabins)
+    margin = int(cfg.export.transition_margin_s * 1e9)
+    rides = [(tr.start_ns - margin, tr.end_ns + margin) for tr in seg.transitions]
+    planar = Role.LIDAR not in src.roles
+    total = src.count(Role.SCAN2D if planar else Role.LIDAR)
+    last_used: dict[int, F64] = {}
+    with progress.stage("maps", total=total) as bar:
+        for stamp_ns, frame_id, xyz in _scans(src, planar):
+            bar.advance()
+            i = index.get(stamp_ns)
+            if i is None or seg.floor_at(stamp_ns) < 0 or _near_transition(stamp_ns, rides):
+                continue  # not posed by mapping, or in (or at the ends of) a ride/stair walk
+            to_base = extrinsics.get(frame_id)
+            pts = xyz.astype(np.float64)
+            if to_base is not None:
+                pts = pts @ to_base[:3, :3].T + to_base[:3, 3]
+            pose = trajectory.poses[i]
+            floor_id = int(trajectory.floor[i])
+            if not _moved(last_used.get(floor_id), pose, cfg):
+                continue
+            if _in_cabin(pose, stamp_ns, cabins):
+                continue  # from inside the cabin: its walls, and mirror ghosts behind them
+            pts = _drop_cabin(pts, pose, stamp_ns, shafts)
+            maps.add(floor_id, pose, pts)
+            last_used[floor_id] = pose
+    return trajectory, maps
+
+
+def _moved(last: F64 | None, pose: F64, cfg: MfmapConfig) -> bool:
+    if last is None:
+        return True
+    delta = np.linalg.inv(last) @ pose
+    turn_deg = math.degrees(math.acos(float(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    return bool(
+        np.linalg.norm(delta[:3, 3]) >= cfg.export.scan_min_motion_m
+        or turn_deg >= cfg.export.scan_min_turn_deg
+    )
+
+
+def _near_transition(stamp_ns: int, spans: list[tuple[int, int]]) -> bool:
+    return any(lo <= stamp_ns <= hi for lo, hi in spans)
+
+
+def _scans(src: LogSource, planar: bool) -> Iterator[tuple[int, str, np.ndarray]]:
+    if planar:
+        for scan in src.scans2d():
+            xyz = np.column_stack([scan.xy, np.zeros(len(scan.xy), dtype=np.float32)])
+            yield scan.stamp_ns, scan.frame_id, xyz
+    else:
+        for cloud in src.clouds():
+            yield cloud.stamp_ns, cloud.frame_id, cloud.xyz
+
+
+@dataclass(frozen=True)
+class _Cabin:
+    start_ns: int
+    end_ns: int
+    pose: F64  # base pose in the cabin (world)
+    half_xy_m: tuple[float, float]
+
+
+def _cabins(seg: FloorSegmentation, trajectory: Trajectory, cfg: MfmapConfig) -> list[_Cabin]:
+    """Where the robot stood in each elevator, with the window in which its walls are seen."""
+    if not cfg.mapping.cabin_filter or trajectory.stamps_ns.shape[0] == 0:
+        return []
+    window = int(cfg.mapping.cabin_window_s * 1e9)
+    half = (cfg.mapping.cabin_size_m[0] / 2, cfg.mapping.cabin_size_m[1] / 2)
+    out = []
+    for tr in seg.transitions:
+        if tr.kind != TransitionKind.ELEVATOR:
+            continue
+        for stamp in (tr.start_ns, tr.end_ns):
+            i = int(np.clip(np.searchsorted(trajectory.stamps_ns, stamp), 0, len(trajectory.stamps_ns) - 1))
+            lo = tr.start_ns - window if stamp == tr.start_ns else tr.end_ns
+            hi = tr.start_ns if stamp == tr.start_ns else tr.end_ns + window
+            out.append(_Cabin(lo, hi, trajectory.poses[i], half))
+    return out
+
+
+def _distinct_cabins(cabins: list[_Cabin], radius_m: float = 0.5) -> list[_Cabin]:
+    """One cabin per elevator shaft (rides from the same spot share it), for the mirror filter."""
+    out: list[_Cabin] = []
+    for cabin in cabins:
+        if all(np.hypot(*(cabin.pose[:2, 3] - c.pose[:2, 3])) > radius_m for c in out):
+            out.append(cabin)
+    return out
+
+
+def _in_cabin(pose: F64, stamp_ns: int, cabins: list[_Cabin], margin_m: float = 0.3) -> bool:
+    for cabin in cabins:
+        if cabin.start_ns <= stamp_ns <= cabin.end_ns:
+            local = (pose[:3, 3] - cabin.pose[:3, 3]) @ cabin.pose[:3, :3]
+            if abs(local[0]) < cabin.half_xy_m[0] + margin_m and abs(local[1]) < cabin.half_xy_m[1] + margin_m:
+                return True
+    return False
+
+
+def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[_Cabin]) -> np.ndarray:
+    """Drop returns from each elevator cabin and from anything seen through it.
+
+    Cabin walls are often mirrors (seed 000): what a ray shows after crossing the cabin is a
+    reflection, not the building. In the base frame of the scan, per cabin: points inside the
+    cabin box, and points whose ray from the sensor leaves the box before reaching them.
+    """
+    del stamp_ns  # the cabin stays where it is; its walls matter at any time
+    if not cabins or points_base.shape[0] == 0:
+        return points_base
+    keep = np.ones(points_base.shape[0], dtype=bool)
+    for cabin in cabins:
+        box_in_base = np.linalg.inv(pose) @ cabin.pose
+        rot, origin = box_in_base[:3, :3], box_in_base[:3, 3]
+        local = (points_base[:, :2] - origin[:2]) @ rot[:2, :2]
+        sensor = (-origin[:2]) @ rot[:2, :2]  # the base origin in the box frame
+        half = np.array(cabin.half_xy_m)
+        d = local - sensor
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (-half - sensor) / d
+            t2 = (half - sensor) / d
+        # fmin/fmax skip the NaN of a ray parallel to a slab (faster than nanmin/nanmax).
+        t_near = np.fmax(np.fmin(t1[:, 0], t2[:, 0]), np.fmin(t1[:, 1], t2[:, 1]))
+        t_far = np.fmin(np.fmax(t1[:, 0], t2[:, 0]), np.fmax(t1[:, 1], t2[:, 1]))
+        crosses = (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
+        inside = np.all(np.abs(local) < half, axis=1)
+        keep &= ~(inside | (crosses & (t_far < 1.0)))
+    return points_base[keep]
+
+
+# ----- the output folder -------------------------------------------------------------------
+
+
+def _check_output(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise OutputError("exists and is not a folder", out)
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise OutputError("exists and is not empty (use --force to replace it)", out)
+    if not out.parent.exists():
+        try:
+            out.parent.mkdir(parents=True)
+        except OSError as err:
+            raise OutputError(f"cannot create the parent folder ({err.strerror})", out.parent) from err
+
+
+def _make_partial(out: Path) -> Path:
+    try:
+        partial = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(partial, 0o777 & ~mask)  # mkdtemp makes it private (0700)
+        return partial
+    except OSError as err:
+        raise OutputError(f"cannot write here ({err.strerror})", out.parent) from err
+
+
+def _commit(partial: Path, out: Path) -> None:
+    """Rename the finished partial folder into place (replacing an old OUT only now)."""
+    old: Path | None = None
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=out.parent))
+        os.replace(out, old / out.name)
+    os.replace(partial, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _finish_report(folder: Path, timings: dict[str, float], elapsed_s: float, log_s: float) -> None:
+    """Add the whole build's time and peak memory to report.json (still in the partial folder)."""
+    import json
+
+    from mfmap.export.files import write_json
+
+    path = folder / "report.json"
+    doc = json.loads(path.read_text())
+    doc["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
+    doc["timings_s"]["total"] = round(elapsed_s, 3)
+    doc["summary"]["build_s"] = round(elapsed_s, 3)
+    doc["summary"]["realtime_factor"] = round(log_s / elapsed_s, 2) if elapsed_s > 0 else None
+    doc["summary"]["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    write_json(path, doc)
+
+
+# ----- terminal summary --------------------------------------------------------------------
+
+
+def render_summary(result: BuildResult) -> RenderableType:
+    """Floors, elevations, transitions, time taken, real-time factor, where the outputs are."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    floors = Table(title="floors", title_justify="left")
+    for col in ("floor", "elevation [m]", "visits", "connectors"):
+        floors.add_column(col, justify="right")
+    for f in result.floors:
+        floors.add_row(str(f["id"]), f"{f['elevation_m']:+.3f}", str(len(f["visits"])),
+                       ",".join(str(c) for c in f["connectors"]) or "-")
+    transitions = Table(title="transitions", title_justify="left")
+    for col in ("kind", "from", "to", "height change [m]", "duration [s]", "x, y"):
+        transitions.add_column(col, justify="right")
+    for t in result.transitions:
+        xy = f"{t['x']:.2f}, {t['y']:.2f}" if "x" in t else "-"
+        transitions.add_row(t["kind"], str(t["from"]), str(t["to"]), f"{t['height_change_m']:+.3f}",
+                            f"{t['t_end'] - t['t_start']:.1f}", xy)
+    factors = Table(title="factor graph", title_justify="left")
+    for col in ("factor", "count", "final error", "outliers", "rejected"):
+        factors.add_column(col, justify="right")
+    for name, stats in result.graph.get("factors", {}).items():
+        factors.add_row(name, str(stats["count"]), f"{stats['error_final']:.3g}", str(stats["outliers"]),
+                        str(stats["rejected"]))
+    timing = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
+    lines = Text(
+        f"built {result.log.name} ({result.log_duration_s:.0f} s of log) in {result.elapsed_s:.1f} s: "
+        f"{result.realtime_factor:.1f}x real time ({timing})\noutputs: {result.out}/ "
+        f"(map.ply, trajectory.tum, floors.json, floors/<id>/grid.pgm|yaml|png, report.html)"
+    )
+    return Group(floors, transitions, factors, lines)
+
+
+__all__ = ["BuildResult", "accumulate", "build", "optimise", "render_summary", "segment_floors"]

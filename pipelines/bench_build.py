@@ -1,0 +1,142 @@
+"""Benchmark and accuracy table for `mfmap build` (prints figures; never asserts on time).
+
+    python pipelines/bench_build.py two-floor            # whole-process time, peak memory, RTF
+    python pipelines/bench_build.py long --work work/bench
+    python pipelines/bench_build.py two-floor --ablations   # accuracy with each ablation off once
+
+Speed: `mfmap build` runs as a child process; wall time and the child's peak RSS
+(getrusage(RUSAGE_CHILDREN).ru_maxrss) are the whole process's. Accuracy: `mfmap eval` metrics
+against the simulator's ground truth (checkpoint RMSE per floor, inter-floor x/y/yaw/z errors).
+For the ablations the front stages (floors, mapping) run once and the graph and exports are
+redone per variant, since the switches only change the graph.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+ABLATIONS: dict[str, dict[str, bool]] = {
+    "full": {},
+    "no barometer factors": {"barometer_factors": False},
+    "no elevator continuity": {"elevator_continuity": False},
+    "no inter-floor registration": {"inter_floor_registration": False},
+}
+
+
+def simulate(scenario: str, work: Path, seed: int) -> Path:
+    from mfmap.sim import simulate as run
+
+    folder = work / f"sim-{scenario}-{seed}"
+    if not (folder / ".complete").exists():
+        run(scenario, folder, fmt="mcap", seed=seed)
+        (folder / ".complete").write_text("ok\n")
+    return folder
+
+
+def bench(sim: Path, out: Path) -> dict[str, float]:
+    """Time `mfmap build` as a child process; return wall time, peak RSS, real-time factor."""
+    shutil.rmtree(out, ignore_errors=True)
+    exe = Path(sys.executable).parent / "mfmap"
+    started = time.perf_counter()
+    proc = subprocess.run([str(exe), "build", str(sim / "log.mcap"), "-o", str(out), "--force"],
+                          capture_output=True, text=True)
+    wall_s = time.perf_counter() - started
+    if proc.returncode != 0:
+        raise SystemExit(f"mfmap build failed:\n{proc.stderr}")
+    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    report = json.loads((out / "report.json").read_text())
+    log_s = float(report["summary"]["log_duration_s"])
+    return {"log_s": log_s, "wall_s": wall_s, "peak_rss_mb": peak_mb, "rtf": log_s / wall_s,
+            **{f"stage_{k}_s": v for k, v in report["timings_s"].items()}}
+
+
+def evaluate(out: Path, sim: Path) -> dict[str, Any]:
+    from mfmap.eval import evaluate as run_eval
+
+    result = run_eval(out, points=sim / "gt_points.csv", floors=sim / "gt_floors.json",
+                      trajectory=sim / "gt_trajectory.tum")
+    target = out / "eval.json"
+    result.write_json(target)
+    return dict(json.loads(target.read_text()))
+
+
+def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
+    """Front stages once; graph + exports + eval per ablation."""
+    from mfmap import pipeline
+    from mfmap.config import MfmapConfig, dump_config
+    from mfmap.export.config import CloudSource
+    from mfmap.export.write import write_outputs
+    from mfmap.ingest import open_log
+    from mfmap.mapping import map_floors
+
+    cfg = MfmapConfig()
+    warnings: list[str] = []
+    rows = []
+    with open_log(sim / "log.mcap", cfg.ingest) as src:
+        pressure, seg = pipeline.segment_floors(src, cfg, warnings)
+        extrinsics = src.extrinsics()
+        mapping = map_floors(src, seg, cfg.mapping, extrinsics)
+        imu = src.imu()
+        for name, switches in ABLATIONS.items():
+            variant = cfg.model_copy(deep=True)
+            for key, value in switches.items():
+                setattr(variant.graph, key, value)
+            variant.export.cloud_source = CloudSource.KEYFRAMES
+            variant.export.html_report = False
+            graph = pipeline.optimise(mapping, seg, pressure, imu, extrinsics, variant, pipeline.NullProgress())
+            trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, variant,
+                                                   pipeline.NullProgress())
+            out = work / f"ablation-{sim.name}-{name.replace(' ', '-')}"
+            shutil.rmtree(out, ignore_errors=True)
+            report = {"summary": {}, "graph": graph.to_json(), "timings_s": {}, "warnings": graph.warnings}
+            write_outputs(out, seg, mapping, graph, trajectory, maps, report, dump_config(variant),
+                          title=name, html=False)
+            rows.append((name, evaluate(out, sim)))
+    return rows
+
+
+def _fmt_eval(ev: dict[str, Any]) -> str:
+    metrics = ev.get("metrics", ev)
+    keys = sorted(
+        k for k in metrics
+        if (k.startswith("points.floor") and k.endswith(".rmse_m") and ".z_" not in k)
+        or (k.startswith("floors.inter") and not k.startswith("floors.inter."))
+        or k == "floors.count_correct"
+    )
+    return "  " + "\n  ".join(f"{k} = {metrics[k]:.4f}" for k in keys)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("scenario", nargs="+")
+    parser.add_argument("--work", type=Path, default=ROOT / "work" / "bench")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ablations", action="store_true", help="accuracy table per ablation")
+    args = parser.parse_args()
+    args.work.mkdir(parents=True, exist_ok=True)
+    for scenario in args.scenario:
+        sim = simulate(scenario, args.work, args.seed)
+        if args.ablations:
+            for name, ev in ablations(sim, args.work):
+                print(f"== {scenario} / {name}")
+                print(_fmt_eval(ev))
+            continue
+        out = args.work / f"build-{scenario}-{args.seed}"
+        fig = bench(sim, out)
+        print(f"{scenario}: log {fig['log_s']:.0f} s, build {fig['wall_s']:.1f} s "
+              f"({fig['rtf']:.1f}x real time), peak RSS {fig['peak_rss_mb']:.0f} MB")
+        print("  stages: " + ", ".join(f"{k[6:-2]} {v:.1f} s" for k, v in fig.items() if k.startswith("stage_")))
+        print(_fmt_eval(evaluate(out, sim)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,54 @@
+"""Pieces of the build pipeline: the cabin/mirror filter, gravity per keyframe, one-floor fallback."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mfmap.graph.synthetic import pose_xyyaw
+from mfmap.pipeline import _Cabin, _drop_cabin, _in_cabin, gravity_at_keyframes, single_floor
+from mfmap.types import Extrinsics, ImuSeries, Keyframe
+
+
+def test_cabin_filter_drops_the_cabin_and_what_is_seen_through_it() -> None:
+    cabin = _Cabin(0, 10, pose_xyyaw(10.0, 0.0, 0.0, 0.0), (1.0, 1.0))
+    robot = pose_xyyaw(0.0, 0.0, 0.0, 0.0)
+    points = np.array(
+        [
+            [10.0, 0.5, 1.0],  # inside the cabin
+            [13.0, 0.0, 1.0],  # behind it, seen through it (a mirror ghost)
+            [13.0, 5.0, 1.0],  # beside it: kept
+            [5.0, 0.0, 1.0],  # in front of it: kept
+            [-4.0, 0.0, 1.0],  # behind the robot: kept
+        ]
+    )
+    kept = _drop_cabin(points, robot, 5, [cabin])
+    assert kept.tolist() == points[[2, 3, 4]].tolist()
+    # The same in a turned robot frame: the filter works in the scan's base frame.
+    turned = pose_xyyaw(0.0, 0.0, 0.0, 0.7)
+    base = (points - turned[:3, 3]) @ turned[:3, :3]
+    assert _drop_cabin(base, turned, 5, [cabin]).shape[0] == 3
+    assert _in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 5, [cabin])
+    assert not _in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 50, [cabin])  # outside the window
+    assert not _in_cabin(pose_xyyaw(12.0, 0.0, 0.0, 0.0), 5, [cabin])
+
+
+def test_gravity_at_keyframes_in_the_base_frame() -> None:
+    n = 200
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000  # 100 Hz
+    tilt = np.array([0.0, 0.5, 9.797])  # about 2.9 degrees of pitch, as the IMU frame sees it
+    imu = ImuSeries(stamps, np.zeros((n, 3)), np.tile(tilt, (n, 1)), np.full((n, 4), np.nan), "imu")
+    imu_to_base = pose_xyyaw(0.1, 0.0, 0.2, np.pi / 2)  # IMU turned 90 degrees on the robot
+    ext = Extrinsics("base_link", {"imu": imu_to_base})
+    kfs = [Keyframe(0, 1_000_000_000, 0, 0, np.eye(4), np.zeros((0, 3), np.float32), 1.0, 0.0)]
+    up = gravity_at_keyframes(imu, kfs, ext)[0]
+    assert np.allclose(up, imu_to_base[:3, :3] @ (tilt / np.linalg.norm(tilt)))
+    assert abs(up[0] + 0.0510) < 1e-3 and abs(up[1]) < 1e-9
+    # Accelerating: the mean is not gravity, no factor.
+    moving = ImuSeries(stamps, np.zeros((n, 3)), np.tile([5.0, 0.0, 9.8], (n, 1)), np.full((n, 4), np.nan), "imu")
+    assert gravity_at_keyframes(moving, kfs, ext) == {}
+
+
+def test_single_floor_spans_the_log() -> None:
+    seg = single_floor(5, 1_000)
+    assert len(seg.floors) == 1 and seg.transitions == ()
+    assert seg.floor_at(500) == 0 and seg.visits() == [(0, 5, 1_000)]

@@ -1,0 +1,165 @@
+"""The building graph on a synthetic building with known truth (see mfmap/graph/synthetic.py)."""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import numpy as np
+import pytest
+
+from mfmap.graph.barometer import pressure_to_height_m
+from mfmap.graph.config import GraphConfig
+from mfmap.graph.interfloor import register_floors
+from mfmap.graph.optimize import GraphResult, optimize_building
+from mfmap.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
+
+FLOOR_HEIGHT_M = 4.0
+
+
+def _fit_xyyaw(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Rigid 2D transform (x, y, yaw) taking estimated points onto reference points."""
+    mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
+    h = (est - mu_e).T @ (ref - mu_r)
+    u, _, vt = np.linalg.svd(h)
+    rot = vt.T @ u.T
+    if np.linalg.det(rot) < 0:
+        vt[1] *= -1
+        rot = vt.T @ u.T
+    out = np.eye(3)
+    out[:2, :2] = rot
+    out[:2, 2] = mu_r - rot @ mu_e
+    return out
+
+
+def interfloor_error(b: SyntheticBuilding, poses: dict[int, np.ndarray], lower: int, upper: int) -> tuple[float, float, float, float]:
+    """x, y, yaw (deg) and z error of floor `upper` relative to floor `lower` (seed 002 style)."""
+    fits = {}
+    z_err = {}
+    for f in (lower, upper):
+        ks = [k for k in b.keyframes if k.floor_id == f]
+        est = np.array([poses[k.id][:2, 3] for k in ks])
+        ref = np.array([b.gt_poses[k.id][:2, 3] for k in ks])
+        fits[f] = _fit_xyyaw(est, ref)
+        z_err[f] = float(np.median([poses[k.id][2, 3] - b.gt_poses[k.id][2, 3] for k in ks]))
+    rel = np.linalg.inv(fits[lower]) @ fits[upper]
+    yaw = math.degrees(math.atan2(rel[1, 0], rel[0, 0]))
+    return float(rel[0, 2]), float(rel[1, 2]), yaw, z_err[upper] - z_err[lower]
+
+
+def rmse_per_floor(b: SyntheticBuilding, poses: dict[int, np.ndarray]) -> dict[int, float]:
+    out = {}
+    for f in sorted({k.floor_id for k in b.keyframes}):
+        d = np.array([poses[k.id][:3, 3] - b.gt_poses[k.id][:3, 3] for k in b.keyframes if k.floor_id == f])
+        out[f] = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def building() -> SyntheticBuilding:
+    return make_building((0, 1, 0), seed=3, floor_height_m=FLOOR_HEIGHT_M)
+
+
+@pytest.fixture(scope="module")
+def full(building: SyntheticBuilding) -> GraphResult:
+    b = building
+    return optimize_building(b.keyframes, b.edges, b.segmentation, b.pressure, GraphConfig(), temperature_k=295.0)
+
+
+def test_barometric_factor_takes_our_height() -> None:
+    """baroOut(h) fed to gtsam.BarometricFactor makes its measurement exactly h; z = h - bias."""
+    conv = gtsam.BarometricFactor()
+    h = float(pressure_to_height_m(np.array([100_000.0]), 100_050.0, 295.0)[0])
+    assert h == pytest.approx(4.316, abs=0.005)  # 50 Pa at 295 K is 4.32 m
+    factor = gtsam.BarometricFactor(1, 2, conv.baroOut(h), gtsam.noiseModel.Isotropic.Sigma(1, 0.1))
+    assert factor.measurementIn() == pytest.approx(h, abs=1e-9)
+    values = gtsam.Values()
+    values.insert(1, gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 4.0])))
+    values.insert(2, 0.5)
+    assert factor.unwhitenedError(values)[0] == pytest.approx(4.0 + 0.5 - h, abs=1e-9)
+
+
+def test_factor_counts(building: SyntheticBuilding, full: GraphResult) -> None:
+    n = len(building.keyframes)
+    stats = full.stats
+    assert stats["barometer"].count == n
+    assert stats["bias_walk"].count == n - 1
+    assert stats["gravity"].count == n
+    assert stats["height_tie"].count == n
+    assert stats["elevator"].count == 2  # two rides
+    assert stats["transition_z"].count == 2
+    assert stats["odometry"].count == sum(1 for e in building.edges if e.kind == "odometry")
+    assert stats["loop"].count == sum(1 for e in building.edges if e.kind == "loop")
+    assert stats["interfloor"].count == 1 and stats["interfloor"].rejected == 0
+    assert full.error_final < 0.05 * full.error_initial
+
+
+def test_full_graph_meets_the_bars(building: SyntheticBuilding, full: GraphResult) -> None:
+    initial = {k.id: k.pose for k in building.keyframes}
+    assert rmse_per_floor(building, initial)[1] > 0.3  # the drift the graph has to remove
+    dx, dy, dyaw, dz = interfloor_error(building, full.poses, 0, 1)
+    assert abs(dx) < 0.05 and abs(dy) < 0.05
+    assert abs(dyaw) < 0.2
+    assert abs(dz) < 0.02 * FLOOR_HEIGHT_M
+    rmse = rmse_per_floor(building, full.poses)
+    assert rmse[0] < 0.05 and rmse[1] < 0.06
+    assert full.floor_z_m[1] - full.floor_z_m[0] == pytest.approx(FLOOR_HEIGHT_M, abs=0.08)
+
+
+def test_inter_floor_registration_is_what_fixes_yaw() -> None:
+    """One ride up, no return: only registration can see the ride's yaw error."""
+    b = make_building((0, 1), seed=4, floor_height_m=FLOOR_HEIGHT_M)
+    runs = {
+        on: optimize_building(
+            b.keyframes, b.edges, b.segmentation, b.pressure,
+            GraphConfig(inter_floor_registration=on), temperature_k=295.0,
+        )
+        for on in (False, True)
+    }
+    assert "interfloor" not in runs[False].stats
+    _, _, yaw_off, _ = interfloor_error(b, runs[False].poses, 0, 1)
+    _, _, yaw_on, _ = interfloor_error(b, runs[True].poses, 0, 1)
+    assert abs(yaw_off) > 0.5  # the ride's 1.5 deg error mostly stays without registration
+    assert abs(yaw_on) < 0.2
+
+
+def test_without_barometer_z_comes_from_the_transitions(building: SyntheticBuilding) -> None:
+    b = building
+    res = optimize_building(
+        b.keyframes, b.edges, b.segmentation, b.pressure,
+        GraphConfig(barometer_factors=False), temperature_k=295.0,
+    )
+    assert "barometer" not in res.stats
+    assert res.floor_z_m[1] - res.floor_z_m[0] == pytest.approx(FLOOR_HEIGHT_M, abs=0.1)
+
+
+def test_registration_recovers_a_known_offset(building: SyntheticBuilding) -> None:
+    from mfmap.graph.optimize import floor_points
+
+    b = building
+    gt = b.gt_poses
+    lower = floor_points(b.keyframes, gt, 0, (0.5, 1.5), 0.0)
+    upper = floor_points(b.keyframes, gt, 1, (0.5, 1.5), FLOOR_HEIGHT_M)
+    shift = pose_xyyaw(0.25, -0.15, 0.0, math.radians(2.0))
+    moved = upper @ shift[:3, :3].T + shift[:3, 3]
+    match = register_floors(lower, moved, 0, 1)
+    assert match.accepted, match.reason
+    recovered = match.correction @ shift
+    assert abs(recovered[0, 3]) < 0.01 and abs(recovered[1, 3]) < 0.01
+    assert abs(math.degrees(math.atan2(recovered[1, 0], recovered[0, 0]))) < 0.05
+
+
+def test_corridor_is_rejected_as_ambiguous() -> None:
+    """Two long parallel walls: the floors can slide along them, so no x, y, yaw is trusted."""
+    rng = np.random.default_rng(0)
+
+    def corridor(n: int) -> np.ndarray:
+        x = rng.uniform(0.0, 30.0, n)
+        y = np.where(rng.random(n) < 0.5, 0.0, 2.0) + rng.normal(0, 0.005, n)
+        return np.column_stack([x, y, rng.uniform(0.5, 1.5, n)])
+
+    lower = corridor(20_000)
+    upper = corridor(20_000) + np.array([0.3, 0.0, 0.0])
+    match = register_floors(lower, upper, 0, 1)
+    assert not match.accepted
+    assert "ambiguous" in match.reason
