@@ -1,6 +1,19 @@
+"""mapping stage configuration."""
+
 from __future__ import annotations
 
+from enum import Enum
+
 from pydantic import BaseModel, ConfigDict, Field
+
+
+class MotionPrior(str, Enum):
+    """Where the initial guess for each scan's registration comes from."""
+
+    AUTO = "auto"  # wheel odometry (translation) + IMU gyro (rotation) when present
+    ODOMETRY = "odometry"
+    IMU = "imu"
+    CONSTANT_VELOCITY = "constant_velocity"
 
 
 class MappingConfig(BaseModel):
@@ -8,4 +21,66 @@ class MappingConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    voxel_size_m: float = Field(0.2, description="downsampling voxel for registration")
+    voxel_size_m: float = Field(0.4, description="downsampling voxel of each scan for registration")
+    map_voxel_size_m: float = Field(0.2, description="voxel of the local map")
+    keyframe_voxel_size_m: float = Field(0.1, description="voxel of the cloud kept per keyframe")
+    min_range_m: float = Field(0.4, description="drop returns closer than this (robot body)")
+    max_range_m: float = Field(40.0, description="drop returns farther than this")
+    scan_stride: int = Field(
+        2, ge=1, description="register every n-th scan; the others get a pose from the motion prior"
+    )
+    deskew: bool = Field(True, description="undo motion during a sweep with per-point times")
+    motion_prior: MotionPrior = Field(MotionPrior.AUTO, description="initial guess per scan")
+    icp_max_iterations: int = Field(30, description="ICP iterations per scan")
+    icp_tolerance: float = Field(
+        1e-4, description="ICP stops when fitness and RMSE change less than this (relative)"
+    )
+    icp_initial_threshold_m: float = Field(
+        1.0, description="correspondence distance until the adaptive threshold has samples"
+    )
+    icp_min_motion_m: float = Field(
+        0.0, description="model corrections below this do not feed the adaptive threshold"
+    )
+    icp_min_threshold_m: float = Field(
+        0.4, description="the adaptive correspondence threshold never goes below this"
+    )
+    local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
+    local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")
+    keyframe_distance_m: float = Field(1.0, description="new keyframe after this much travel")
+    keyframe_angle_deg: float = Field(15.0, description="new keyframe after this much rotation")
+    odom_sigma_m: float = Field(0.01, description="odometry edge noise per keyframe (m)")
+    odom_sigma_per_m: float = Field(0.005, description="odometry edge noise growing per metre")
+    odom_sigma_deg: float = Field(0.15, description="odometry edge rotation noise (deg)")
+    loop_closure: bool = Field(True, description="search and verify loop closures (same floor)")
+    loop_radius_m: float = Field(4.0, description="position candidates within this distance")
+    loop_min_separation: int = Field(
+        15, description="within a visit, candidates at least this many keyframes apart"
+    )
+    loop_descriptor_threshold: float = Field(
+        0.25, description="Scan Context distance below which a place is a candidate"
+    )
+    loop_submap_keyframes: int = Field(
+        2, description="a loop target is its keyframe plus this many neighbours on each side"
+    )
+    loop_max_candidates: int = Field(3, description="candidates verified per keyframe")
+    loop_min_fitness: float = Field(0.55, description="accept a loop with this overlap or more")
+    loop_max_rmse_m: float = Field(0.06, description="accept a loop with this inlier RMSE or less")
+    loop_ambiguity_m: float = Field(
+        0.05, description="perturbed starts must agree within this, else the match is ambiguous"
+    )
+    loop_min_information_ratio: float = Field(
+        0.02, description="smallest/largest eigenvalue of the loop's translation information"
+    )
+    loop_max_correction_m: float = Field(
+        1.0, description="reject a loop that moves the keyframe more than this from odometry"
+    )
+    loop_sigma_m: float = Field(0.01, description="loop edge noise (m)")
+    loop_sigma_deg: float = Field(0.3, description="loop edge noise (deg)")
+    cabin_filter: bool = Field(True, description="drop returns from inside the elevator cabin")
+    cabin_size_m: tuple[float, float] = Field(
+        (2.4, 2.4), description="cabin box (x, y in the robot's heading frame during the ride)"
+    )
+    cabin_window_s: float = Field(
+        30.0, description="filter cabin returns this long before and after a ride"
+    )
+    seed: int = Field(0, description="seed for any random choice (perturbed loop checks)")

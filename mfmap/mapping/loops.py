@@ -1,0 +1,236 @@
+"""Loop closure on one floor: candidates by position and by a place descriptor, verified by ICP.
+
+The descriptor is a polar occupancy histogram of the keyframe cloud in its own base frame
+(Scan Context with point counts in a height band instead of max height, since indoor ceilings
+make max height uninformative). It does not depend on the drifted pose, so it finds revisits
+whose pose estimates have drifted apart; the column shift of the best match gives a yaw guess.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from mfmap.mapping.config import MappingConfig
+from mfmap.mapping.geometry import inverse, yaw_pose
+from mfmap.mapping.registration import (
+    Registration,
+    downsample,
+    icp,
+    information,
+    to_o3d,
+    with_normals,
+)
+from mfmap.types import F32, F64, Keyframe, PoseEdge
+
+RINGS = 20
+SECTORS = 60
+MAX_RADIUS_M = 20.0
+BAND_M = (0.2, 2.2)  # height band above the base that walls and furniture occupy
+
+
+def place_descriptor(cloud_base: F32 | F64) -> F64:
+    """(RINGS, SECTORS) polar histogram of points in the height band, each column normalised."""
+    pts = np.asarray(cloud_base, dtype=np.float64)
+    keep = (pts[:, 2] > BAND_M[0]) & (pts[:, 2] < BAND_M[1])
+    pts = pts[keep]
+    radius = np.hypot(pts[:, 0], pts[:, 1])
+    inside = radius < MAX_RADIUS_M
+    pts, radius = pts[inside], radius[inside]
+    ring = np.minimum((radius / MAX_RADIUS_M * RINGS).astype(int), RINGS - 1)
+    angle = np.arctan2(pts[:, 1], pts[:, 0]) + np.pi
+    sector = np.minimum((angle / (2 * np.pi) * SECTORS).astype(int), SECTORS - 1)
+    desc = np.zeros((RINGS, SECTORS))
+    np.add.at(desc, (ring, sector), 1.0)
+    return np.log1p(desc)
+
+
+def ring_key(desc: F64) -> F64:
+    return desc.mean(axis=1)
+
+
+def descriptor_distance(a: F64, b: F64) -> tuple[float, int]:
+    """Scan Context distance (1 - mean column cosine) minimised over yaw shifts; (dist, shift)."""
+    best, best_shift = 2.0, 0
+    norm_a = np.linalg.norm(a, axis=0)
+    for shift in range(SECTORS):
+        rolled = np.roll(b, shift, axis=1)
+        norm_b = np.linalg.norm(rolled, axis=0)
+        valid = (norm_a > 0) & (norm_b > 0)
+        if valid.sum() < SECTORS // 4:
+            continue
+        cos = (a[:, valid] * rolled[:, valid]).sum(axis=0) / (norm_a[valid] * norm_b[valid])
+        dist = 1.0 - float(cos.mean())
+        if dist < best:
+            best, best_shift = dist, shift
+    return best, best_shift
+
+
+def plane_fit(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: F64,
+              max_distance_m: float) -> tuple[float, float]:
+    """(share of source points near the target, point-to-plane RMSE of those points).
+
+    Point-to-plane, because with a sparse 16-beam lidar point-to-point distances are dominated
+    by the gaps between rings, not by misalignment.
+    """
+    src = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
+    tgt = np.asarray(target.points)
+    normals = np.asarray(target.normals)
+    dist, idx = cKDTree(tgt).query(src, distance_upper_bound=max_distance_m)
+    ok = np.isfinite(dist)
+    if not ok.any():
+        return 0.0, float("inf")
+    residual = ((src[ok] - tgt[idx[ok]]) * normals[idx[ok]]).sum(axis=1)
+    return float(ok.mean()), float(np.sqrt(np.mean(residual**2)))
+
+
+@dataclass
+class LoopStats:
+    candidates: int = 0
+    accepted: int = 0
+    rejected_fitness: int = 0
+    rejected_ambiguous: int = 0
+    rejected_degenerate: int = 0
+    rejected_implausible: int = 0
+
+
+@dataclass(frozen=True)
+class LoopCheck:
+    accepted: bool
+    reason: str
+    registration: Registration | None
+
+
+class LoopCloser:
+    """Keeps the keyframes of every floor and proposes verified loop edges, same floor only."""
+
+    def __init__(self, cfg: MappingConfig) -> None:
+        self.cfg = cfg
+        self.stats = LoopStats()
+        self._keyframes: dict[int, Keyframe] = {}
+        self._desc: dict[int, F64] = {}
+        self._keys: dict[int, F64] = {}
+        self._rng = np.random.default_rng(cfg.seed)
+
+    def add(self, kf: Keyframe) -> list[PoseEdge]:
+        """Register a new keyframe; return the verified loop edges it closes."""
+        desc = place_descriptor(kf.cloud)
+        edges: list[PoseEdge] = []
+        if self.cfg.loop_closure:
+            for other_id, guess in self._candidates(kf, desc):
+                self.stats.candidates += 1
+                check = self.verify(self.submap(other_id), kf.cloud, guess)
+                if check.accepted and check.registration is not None:
+                    # Repeating structure (pillars, doors) aliases by metres; drift does not.
+                    odom_rel = inverse(self._keyframes[other_id].pose) @ kf.pose
+                    moved = inverse(odom_rel) @ check.registration.transform
+                    if float(np.linalg.norm(moved[:3, 3])) > self.cfg.loop_max_correction_m:
+                        self.stats.rejected_implausible += 1
+                        continue
+                    self.stats.accepted += 1
+                    edges.append(self._edge(other_id, kf.id, check.registration))
+                    break
+                self._count_rejection(check.reason)
+        self._keyframes[kf.id] = kf
+        self._desc[kf.id] = desc
+        self._keys[kf.id] = ring_key(desc)
+        return edges
+
+    def submap(self, center_id: int) -> F64:
+        """The keyframe's cloud plus its neighbours of the same visit, in its frame.
+
+        A single sparse scan gives a loop a rotation error of several tenths of a degree;
+        a few neighbours (placed by the locally accurate odometry) make the target dense.
+        """
+        center = self._keyframes[center_id]
+        to_center = inverse(center.pose)
+        parts = []
+        for k in range(center_id - self.cfg.loop_submap_keyframes,
+                       center_id + self.cfg.loop_submap_keyframes + 1):
+            other = self._keyframes.get(k)
+            if other is None or other.visit != center.visit:
+                continue
+            rel = to_center @ other.pose
+            parts.append(np.asarray(other.cloud, dtype=np.float64) @ rel[:3, :3].T + rel[:3, 3])
+        return np.concatenate(parts)
+
+    def _count_rejection(self, reason: str) -> None:
+        if reason == "fitness":
+            self.stats.rejected_fitness += 1
+        elif reason == "ambiguous":
+            self.stats.rejected_ambiguous += 1
+        elif reason == "degenerate":
+            self.stats.rejected_degenerate += 1
+
+    def _candidates(self, kf: Keyframe, desc: F64) -> list[tuple[int, F64]]:
+        """(keyframe id, initial guess of kf in that keyframe's frame), best first."""
+        same_floor = [
+            other for other in self._keyframes.values()
+            if other.floor_id == kf.floor_id  # never propose a loop between floors
+            and (other.visit != kf.visit or kf.id - other.id >= self.cfg.loop_min_separation)
+        ]
+        if not same_floor:
+            return []
+        out: list[tuple[int, F64]] = []
+        seen: set[int] = set()
+        dists = [(float(np.linalg.norm(o.pose[:2, 3] - kf.pose[:2, 3])), o) for o in same_floor]
+        dists.sort(key=lambda d: d[0])
+        for dist, other in dists[: self.cfg.loop_max_candidates]:
+            if dist > self.cfg.loop_radius_m:
+                break
+            out.append((other.id, inverse(other.pose) @ kf.pose))
+            seen.add(other.id)
+        key = ring_key(desc)
+        by_key = sorted(same_floor, key=lambda o: float(np.linalg.norm(self._keys[o.id] - key)))
+        for other in by_key[: 2 * self.cfg.loop_max_candidates]:
+            if other.id in seen:
+                continue
+            dist, shift = descriptor_distance(self._desc[other.id], desc)
+            if dist > self.cfg.loop_descriptor_threshold:
+                continue
+            # kf's sector s matches the other's sector s + shift: kf is yawed by +shift sectors.
+            yaw = shift * 2 * np.pi / SECTORS
+            out.append((other.id, yaw_pose(yaw)))
+            seen.add(other.id)
+        return out[: 2 * self.cfg.loop_max_candidates]
+
+    def verify(self, target_points: F32 | F64, source_points: F32 | F64, guess: F64) -> LoopCheck:
+        """Align source to target from guess; accept only a good, unambiguous, well-posed match."""
+        coarse_voxel, fine_voxel = 0.5, 0.2
+        src_c = to_o3d(downsample(source_points, coarse_voxel))
+        tgt_c = with_normals(downsample(target_points, coarse_voxel), 3 * coarse_voxel)
+        src_f = to_o3d(downsample(source_points, fine_voxel))
+        tgt_f = with_normals(downsample(target_points, fine_voxel), 3 * fine_voxel)
+
+        def align(start: F64) -> Registration:
+            coarse = icp(src_c, tgt_c, start, 3 * coarse_voxel, coarse_voxel, 40)
+            return icp(src_f, tgt_f, coarse.transform, 2 * fine_voxel, fine_voxel, 40)
+
+        best = align(guess)
+        check_distance = 0.25
+        fitness, rmse = plane_fit(src_f, tgt_f, best.transform, check_distance)
+        result = Registration(best.transform, fitness, rmse)
+        if fitness < self.cfg.loop_min_fitness or rmse > self.cfg.loop_max_rmse_m:
+            return LoopCheck(False, "fitness", result)
+        # Unambiguous: starts perturbed by half a metre and 10 degrees must land on the same answer.
+        for _ in range(3):
+            offset = yaw_pose(float(self._rng.uniform(-0.17, 0.17)),
+                              np.r_[self._rng.uniform(-0.5, 0.5, 2), 0.0])
+            other = align(best.transform @ offset)
+            moved = float(np.linalg.norm(other.transform[:3, 3] - best.transform[:3, 3]))
+            if moved > self.cfg.loop_ambiguity_m:
+                return LoopCheck(False, "ambiguous", result)
+        info = information(src_f, tgt_f, check_distance, best.transform)
+        eig = np.linalg.eigvalsh(info[3:, 3:])
+        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
+            return LoopCheck(False, "degenerate", result)
+        return LoopCheck(True, "ok", result)
+
+    def _edge(self, i: int, j: int, result: Registration) -> PoseEdge:
+        sig_r = np.radians(self.cfg.loop_sigma_deg)
+        sig_t = self.cfg.loop_sigma_m
+        info = np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
+        return PoseEdge(i, j, result.transform, info, "loop", result.fitness)

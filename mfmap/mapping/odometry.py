@@ -1,0 +1,107 @@
+"""Scan-to-local-map lidar odometry: bounded local map, adaptive threshold, robust ICP."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from mfmap.mapping.geometry import inverse, rotation_angle_rad, transform
+from mfmap.mapping.registration import Registration, downsample, icp, to_o3d
+from mfmap.types import F64
+
+
+class AdaptiveThreshold:
+    """KISS-ICP's correspondence threshold: 3 sigma of how far the prior was off so far."""
+
+    def __init__(self, initial_m: float, min_motion_m: float, max_range_m: float,
+                 floor_m: float) -> None:
+        self.initial_m = initial_m
+        self.min_motion_m = min_motion_m
+        self.max_range_m = max_range_m
+        self.floor_m = floor_m
+        self._sum_sq = 0.0
+        self._count = 0
+
+    def update(self, correction: F64) -> None:
+        theta = rotation_angle_rad(correction)
+        error = 2.0 * self.max_range_m * math.sin(theta / 2.0) + float(
+            np.linalg.norm(correction[:3, 3]))
+        if error > self.min_motion_m:
+            self._sum_sq += error * error
+            self._count += 1
+
+    @property
+    def value_m(self) -> float:
+        if self._count == 0:
+            return self.initial_m
+        return max(3.0 * math.sqrt(self._sum_sq / self._count), self.floor_m)
+
+
+class LocalMap:
+    """The last keyframes' clouds in the world frame, merged at a voxel; bounded in size."""
+
+    def __init__(self, voxel_m: float, max_keyframes: int, radius_m: float) -> None:
+        self.voxel_m = voxel_m
+        self.radius_m = radius_m
+        self._frames: deque[tuple[F64, F64]] = deque(maxlen=max_keyframes)  # (position, points)
+        self.target: o3d.geometry.PointCloud | None = None
+        self.size = 0
+
+    def clear(self) -> None:
+        self._frames.clear()
+        self.target = None
+        self.size = 0
+
+    def add(self, world_points: F64, position: F64) -> None:
+        self._frames.append((position, downsample(world_points, self.voxel_m)))
+        near = [pts for (pos, pts) in self._frames
+                if np.linalg.norm(pos - position) <= self.radius_m]
+        merged = downsample(np.concatenate(near), self.voxel_m)
+        cloud = to_o3d(merged)
+        cloud.estimate_normals(
+            o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * self.voxel_m, max_nn=20))
+        self.target = cloud
+        self.size = len(merged)
+
+
+@dataclass(frozen=True)
+class ScanMatch:
+    pose: F64  # base in world after registration (or the prediction when not registered)
+    fitness: float
+    rmse_m: float
+    registered: bool
+
+
+class ScanMatcher:
+    """Registers deskewed scans (base frame) against the local map of the current visit."""
+
+    def __init__(self, voxel_m: float, local_map: LocalMap, threshold: AdaptiveThreshold,
+                 max_iterations: int, min_fitness: float = 0.2, tolerance: float = 1e-6) -> None:
+        self.voxel_m = voxel_m
+        self.map = local_map
+        self.threshold = threshold
+        self.max_iterations = max_iterations
+        self.min_fitness = min_fitness
+        self.tolerance = tolerance
+        self.failures = 0
+
+    def match(self, points_base: F64, predicted: F64) -> ScanMatch:
+        if self.map.target is None or len(points_base) < 10:
+            return ScanMatch(predicted, 0.0, 0.0, False)
+        source = to_o3d(downsample(points_base, self.voxel_m))
+        max_distance = self.threshold.value_m
+        result: Registration = icp(source, self.map.target, predicted, max_distance,
+                                   max(max_distance / 3.0, 0.5 * self.voxel_m),
+                                   self.max_iterations, self.tolerance)
+        if result.fitness < self.min_fitness:
+            self.failures += 1
+            return ScanMatch(predicted, result.fitness, result.rmse_m, False)
+        self.threshold.update(inverse(predicted) @ result.transform)
+        return ScanMatch(result.transform, result.fitness, result.rmse_m, True)
+
+    def add_keyframe(self, points_base: F64, pose: F64) -> None:
+        self.map.add(transform(points_base, pose), pose[:3, 3])

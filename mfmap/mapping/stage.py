@@ -1,0 +1,495 @@
+"""The mapping stage: one pass over the lidar scans, floor visit by floor visit.
+
+Per scan: sensor -> base frame, range filter, deskew, cabin filter, scan-to-local-map ICP from the
+motion prior, keyframe decision, loop search on the same floor. Elevator rides hold x, y, yaw
+(scans not registered); stairs keep the odometry running with z free.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mfmap.errors import MissingDataError
+from mfmap.mapping.cabin import CabinFilter
+from mfmap.mapping.config import MappingConfig, MotionPrior
+from mfmap.mapping.geometry import (
+    GyroIntegrator,
+    PoseInterpolator,
+    deskew,
+    inverse,
+    rotation_angle_rad,
+    transform,
+    twist,
+    yaw_pose,
+    yaw_rad,
+)
+from mfmap.mapping.loops import LoopCloser
+from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
+from mfmap.mapping.registration import downsample
+from mfmap.mapping.scan2d import Scan2DMatcher
+from mfmap.progress import NullProgress, Progress
+from mfmap.types import (
+    F32,
+    F64,
+    I64,
+    Cloud,
+    Extrinsics,
+    FloorSegmentation,
+    ImuSeries,
+    Keyframe,
+    MappingResult,
+    OdomSeries,
+    PoseEdge,
+    Role,
+    Scan2D,
+    ScanPose,
+    Transition,
+    TransitionKind,
+)
+
+logger = logging.getLogger(__name__)
+
+
+class LogSourceLike(Protocol):
+    """What the mapping stage needs from `mfmap.ingest.LogSource`."""
+
+    @property
+    def roles(self) -> dict[Role, str]: ...
+
+    def clouds(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Cloud]: ...
+
+    def scans2d(
+        self, start_ns: int | None = None, end_ns: int | None = None
+    ) -> Iterator[Scan2D]: ...
+
+    def odometry(self) -> OdomSeries | None: ...
+
+    def imu(self) -> ImuSeries | None: ...
+
+    def count(self, role: Role) -> int: ...
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Where a scan falls: a floor visit, an elevator ride or a walk (stairs) between visits."""
+
+    kind: str  # "visit" | "ride" | "walk"
+    visit: int  # the visit (for a transition: the visit before it)
+    floor_id: int
+    transition: Transition | None = None
+
+
+class Timeline:
+    """Maps a stamp to its Segment using the floors stage's visits and transitions."""
+
+    def __init__(self, seg: FloorSegmentation) -> None:
+        self.visits = seg.visits() or [(0, -(2**62), 2**62)]
+        self.transitions = sorted(seg.transitions, key=lambda tr: tr.start_ns)
+        self._starts = np.array([v[1] for v in self.visits], dtype=np.int64)
+
+    def at(self, stamp_ns: int) -> Segment:
+        v = max(int(np.searchsorted(self._starts, stamp_ns, side="right")) - 1, 0)
+        for tr in self.transitions:
+            if tr.start_ns <= stamp_ns <= tr.end_ns:
+                kind = "ride" if tr.kind == TransitionKind.ELEVATOR else "walk"
+                return Segment(kind, v, self.visits[v][0], tr)
+        return Segment("visit", v, self.visits[v][0])
+
+
+@dataclass
+class _State:
+    visit: int = -1
+    pose: F64 = field(default_factory=lambda: np.eye(4))  # base in world at the last scan
+    stamp_ns: int | None = None
+    delta: F64 = field(default_factory=lambda: np.eye(4))  # last scan-to-scan motion
+    delta_dt_s: float = 0.1
+    keyframe: Keyframe | None = None  # last keyframe handed out
+    map_pose: F64 | None = None  # pose of the last local-map update (also during stairs)
+    link_previous: bool = True  # odometry edge from the previous keyframe (False after a ride)
+    scan_index: int = 0
+
+
+class MotionModel:
+    """Initial guess of the motion between two scans: odometry, IMU gyro, constant velocity."""
+
+    def __init__(self, prior: MotionPrior, odom: OdomSeries | None, imu: ImuSeries | None,
+                 extrinsics: Extrinsics) -> None:
+        self.odom = PoseInterpolator.from_odometry(odom) if odom is not None else None
+        self.gyro: GyroIntegrator | None = None
+        if imu is not None and GyroIntegrator.usable(imu):
+            imu_to_base = extrinsics.get(imu.frame_id)
+            self.gyro = GyroIntegrator(imu, imu_to_base if imu_to_base is not None else np.eye(4),
+                                       odom)
+        use_odom = prior in (MotionPrior.AUTO, MotionPrior.ODOMETRY)
+        use_gyro = prior in (MotionPrior.AUTO, MotionPrior.IMU)
+        if not use_odom:
+            self.odom = None
+        if not use_gyro:
+            self.gyro = None
+        self.source = "odometry" if self.odom else ("imu" if self.gyro else "constant velocity")
+        self._imu_stamp_ns: I64 | None = None
+        self._accel_base: F64 | None = None
+        if imu is not None and len(imu) > 0:
+            imu_to_base = extrinsics.get(imu.frame_id)
+            rot = np.eye(3) if imu_to_base is None else imu_to_base[:3, :3]
+            self._imu_stamp_ns = imu.stamp_ns
+            self._accel_base = imu.accel_m_s2 @ rot.T
+
+    def level(self, pose: F64, start_ns: int, end_ns: int) -> F64:
+        """The pose with its roll and pitch from gravity (mean accelerometer over the window).
+
+        Used after an elevator ride: the cabin's vertical acceleration averages out and does
+        not tilt the mean, so the new floor starts level even if the old one ended tilted.
+        """
+        if self._imu_stamp_ns is None or self._accel_base is None:
+            return pose
+        window = (self._imu_stamp_ns >= start_ns) & (self._imu_stamp_ns <= end_ns)
+        if window.sum() < 10:
+            return pose
+        up = self._accel_base[window].mean(axis=0)
+        up /= np.linalg.norm(up)
+        # Roll/pitch rotation taking the base's measured "up" to the world's z axis.
+        tilt, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [up])
+        yaw = float(np.arctan2(pose[1, 0], pose[0, 0]))
+        tilt_yaw = float(np.arctan2(tilt.as_matrix()[1, 0], tilt.as_matrix()[0, 0]))
+        rotation = Rotation.from_euler("z", yaw - tilt_yaw) * tilt
+        out = pose.copy()
+        out[:3, :3] = rotation.as_matrix()
+        return out
+
+    def predict(self, state: _State, stamp_ns: int) -> F64:
+        if state.stamp_ns is None:
+            return np.eye(4)
+        dt = (stamp_ns - state.stamp_ns) / 1e9
+        angular, linear = twist(state.delta, state.delta_dt_s)
+        delta = np.eye(4)
+        delta[:3, :3] = Rotation.from_rotvec(angular * dt).as_matrix()
+        delta[:3, 3] = linear * dt
+        if self.odom is not None and self.odom.covers(state.stamp_ns) and self.odom.covers(stamp_ns):
+            delta = inverse(self.odom.at(state.stamp_ns)) @ self.odom.at(stamp_ns)
+        if self.gyro is not None and self.gyro.covers(state.stamp_ns) and self.gyro.covers(stamp_ns):
+            delta[:3, :3] = self.gyro.delta(state.stamp_ns, stamp_ns)
+        return delta
+
+    def relative(self, from_ns: int, to_ns: int) -> F64 | None:
+        """Base at to_ns in the base at from_ns, from wheel odometry (None without it)."""
+        if self.odom is None:
+            return None
+        return inverse(self.odom.at(from_ns)) @ self.odom.at(to_ns)
+
+
+def _odometry_information(cfg: MappingConfig, delta: F64) -> F64:
+    dist = float(np.linalg.norm(delta[:3, 3]))
+    sig_t = cfg.odom_sigma_m + cfg.odom_sigma_per_m * dist
+    sig_r = np.radians(cfg.odom_sigma_deg)
+    return np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
+
+
+def _scans(source: LogSourceLike, planar: bool) -> Iterator[tuple[int, str, F32, I64 | None]]:
+    if planar:
+        for scan in source.scans2d():
+            xyz = np.zeros((len(scan.xy), 3), dtype=np.float32)
+            xyz[:, :2] = scan.xy
+            yield scan.stamp_ns, scan.frame_id, xyz, scan.t_offset_ns
+    else:
+        for cloud in source.clouds():
+            yield cloud.stamp_ns, cloud.frame_id, cloud.xyz, cloud.t_offset_ns
+
+
+def map_floors(
+    source: LogSourceLike,
+    seg: FloorSegmentation,
+    cfg: MappingConfig,
+    extrinsics: Extrinsics,
+    progress: Progress | None = None,
+) -> MappingResult:
+    """Per-floor lidar odometry, keyframes and verified same-floor loop closures.
+
+    Keyframe poses are initial guesses in the world frame (the first visit starts at identity);
+    every lidar scan gets a ScanPose. Uses 3D clouds, or LaserScans when the log has no 3D lidar.
+    """
+    progress = progress or NullProgress()
+    roles = source.roles
+    planar = Role.LIDAR not in roles
+    if planar and Role.SCAN2D not in roles:
+        raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)")
+    mapper = _Mapper(cfg, seg, extrinsics, MotionModel(cfg.motion_prior, source.odometry(),
+                                                      source.imu(), extrinsics), planar)
+    total = source.count(Role.SCAN2D if planar else Role.LIDAR)
+    started = time.perf_counter()
+    with progress.stage("mapping", total=total) as bar:
+        for stamp_ns, frame_id, xyz, t_offset_ns in _scans(source, planar):
+            mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
+            bar.advance()
+    result = mapper.result()
+    elapsed = time.perf_counter() - started
+    result.stats["elapsed_s"] = elapsed
+    result.stats["scans_per_s"] = len(result.scan_poses) / elapsed if elapsed > 0 else 0.0
+    return result
+
+
+class _Mapper:
+    def __init__(self, cfg: MappingConfig, seg: FloorSegmentation, extrinsics: Extrinsics,
+                 motion: MotionModel, planar: bool) -> None:
+        self.cfg = cfg
+        self.seg = seg
+        self.extrinsics = extrinsics
+        self.motion = motion
+        self.planar = planar
+        self.timeline = Timeline(seg)
+        self.elevation = {f.id: f.elevation_m for f in seg.floors}
+        self.local_map = LocalMap(cfg.map_voxel_size_m, cfg.local_map_keyframes,
+                                  cfg.local_map_radius_m)
+        self.threshold = AdaptiveThreshold(cfg.icp_initial_threshold_m, cfg.icp_min_motion_m,
+                                           cfg.max_range_m, cfg.icp_min_threshold_m)
+        self.matcher: ScanMatcher | Scan2DMatcher
+        if planar:
+            self.matcher = Scan2DMatcher(cfg.voxel_size_m, cfg.map_voxel_size_m,
+                                         cfg.local_map_keyframes, self.threshold,
+                                         cfg.icp_max_iterations)
+        else:
+            self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
+                                       cfg.icp_max_iterations, tolerance=cfg.icp_tolerance)
+        self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
+        self.loops = LoopCloser(cfg)
+        self.state = _State()
+        self.keyframes: list[Keyframe] = []
+        self.edges: list[PoseEdge] = []
+        self.scan_poses: list[ScanPose] = []
+        self._pending: list[tuple[int, F64]] = []  # scans before the first keyframe
+        self.warnings: list[str] = []
+        self._missing_frames: set[str] = set()
+        self.registered = 0
+        self.in_cabin_scans = 0
+        self.max_map_points = 0
+        if motion.source != "odometry" and cfg.cabin_filter and any(
+            tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
+        ):
+            self.warnings.append(
+                "no wheel odometry: cabin returns are only filtered when leaving an elevator")
+
+    # ----- per scan ---------------------------------------------------------------------------
+
+    def _to_base(self, frame_id: str, xyz: F32) -> F64:
+        sensor_to_base = self.extrinsics.get(frame_id)
+        if sensor_to_base is None:
+            if frame_id not in self._missing_frames:
+                self._missing_frames.add(frame_id)
+                self.warnings.append(f"no extrinsic for lidar frame '{frame_id}': using identity")
+            sensor_to_base = np.eye(4)
+        return transform(xyz, sensor_to_base)
+
+    def _predict(self, stamp_ns: int) -> F64:
+        delta = self.motion.predict(self.state, stamp_ns)
+        if self.planar:  # a 2D lidar's robot moves in the plane: keep x, y, yaw only
+            delta = yaw_pose(yaw_rad(delta), np.array([delta[0, 3], delta[1, 3], 0.0]))
+        return delta
+
+    def _origin(self, frame_id: str) -> F64:
+        sensor_to_base = self.extrinsics.get(frame_id)
+        return np.zeros(3) if sensor_to_base is None else sensor_to_base[:3, 3]
+
+    def add_scan(self, stamp_ns: int, frame_id: str, xyz: F32, t_offset_ns: I64 | None) -> None:
+        segment = self.timeline.at(stamp_ns)
+        state = self.state
+        if segment.kind == "ride":
+            self._ride_scan(stamp_ns, segment)
+            return
+        if segment.kind == "visit" and segment.visit != state.visit:
+            self._start_visit(segment, stamp_ns)
+        state.scan_index += 1
+        has_times = t_offset_ns is not None and len(t_offset_ns) == len(xyz) and len(xyz) > 0
+        if state.scan_index % self.cfg.scan_stride != 0 and state.stamp_ns is not None:
+            delta = self._predict(stamp_ns)
+            dt = (stamp_ns - state.stamp_ns) / 1e9
+            predicted = state.pose @ delta
+            self._record(stamp_ns, predicted, stamp_ns, predicted, delta, dt)
+            return
+
+        # Scans are registered at mid-sweep: the deskewed cloud is then centred on the pose it
+        # is registered for, so an error in the velocity estimate does not shift it and cannot
+        # feed back into the next velocity estimate (referenced to the sweep start, constant
+        # velocity deskewing oscillates).
+        offsets_s = np.zeros(0)
+        ref_offset_s = 0.0
+        if self.cfg.deskew and has_times:
+            assert t_offset_ns is not None
+            offsets_s = t_offset_ns.astype(np.float64) / 1e9
+            ref_offset_s = 0.5 * (float(offsets_s.min()) + float(offsets_s.max()))
+        ref_ns = stamp_ns + round(ref_offset_s * 1e9)
+        delta = self._predict(ref_ns)
+        predicted = state.pose @ delta
+        dt = (ref_ns - state.stamp_ns) / 1e9 if state.stamp_ns is not None else 0.0
+        angular, linear = twist(delta, dt) if dt > 0 else (np.zeros(3), np.zeros(3))
+
+        if self.cabin is not None and self.cabin.robot_inside(ref_ns, predicted):
+            # Inside the cabin the scan is its walls (and their mirror images): motion prior only.
+            self.in_cabin_scans += 1
+            self._record(stamp_ns, predicted, ref_ns, predicted, delta, dt)
+            return
+        rng = np.linalg.norm(xyz, axis=1)
+        keep = (rng > self.cfg.min_range_m) & (rng < self.cfg.max_range_m)
+        points = self._to_base(frame_id, xyz[keep])
+        if len(offsets_s) and dt > 0:
+            points = deskew(points, offsets_s[keep] - ref_offset_s, angular, linear)
+        if self.cabin is not None:
+            points = self.cabin.apply(points, ref_ns, predicted, self._origin(frame_id))
+        match = self.matcher.match(points, predicted)
+        if match.registered:
+            self.registered += 1
+        pose = match.pose
+        if self._needs_keyframe(pose):
+            self._keyframe(ref_ns, points, pose, match.fitness, match.rmse_m,
+                           emit=segment.kind == "visit")
+        scan_pose = pose
+        if ref_offset_s != 0.0:
+            back = np.eye(4)
+            back[:3, :3] = Rotation.from_rotvec(-ref_offset_s * angular).as_matrix()
+            back[:3, 3] = -ref_offset_s * linear
+            scan_pose = pose @ back
+        self._record(stamp_ns, scan_pose, ref_ns, pose,
+                     inverse(state.pose) @ pose if state.stamp_ns is not None else delta, dt)
+
+    def _record(self, stamp_ns: int, scan_pose: F64, ref_ns: int, ref_pose: F64, delta: F64,
+                dt: float) -> None:
+        """Keep the tracking state (at the reference time) and the scan's pose (at its stamp)."""
+        state = self.state
+        if dt > 0:
+            state.delta, state.delta_dt_s = delta, dt
+        state.pose, state.stamp_ns = ref_pose, ref_ns
+        if state.keyframe is None or state.keyframe.visit != state.visit:
+            # Held until the visit's first keyframe, so the scan moves with that visit's graph.
+            self._pending.append((stamp_ns, scan_pose))
+        else:
+            self.scan_poses.append(ScanPose(stamp_ns, state.keyframe.id,
+                                            inverse(state.keyframe.pose) @ scan_pose))
+
+    def _needs_keyframe(self, pose: F64) -> bool:
+        last = self.state.map_pose
+        if last is None or self.matcher.map.size == 0:
+            return True
+        rel = inverse(last) @ pose
+        return bool(
+            np.linalg.norm(rel[:3, 3]) >= self.cfg.keyframe_distance_m
+            or np.degrees(rotation_angle_rad(rel)) >= self.cfg.keyframe_angle_deg
+        )
+
+    def _keyframe(self, stamp_ns: int, points: F64, pose: F64, fitness: float, rmse_m: float,
+                  emit: bool) -> None:
+        """Update the local map; during a visit also hand out a keyframe (not on stairs)."""
+        state = self.state
+        self.matcher.add_keyframe(points, pose)
+        self.max_map_points = max(self.max_map_points, self.matcher.map.size)
+        state.map_pose = pose
+        if not emit:
+            return
+        kf = Keyframe(
+            id=len(self.keyframes),
+            stamp_ns=stamp_ns,
+            floor_id=self.timeline.visits[state.visit][0],
+            visit=state.visit,
+            pose=pose.copy(),
+            cloud=downsample(points, self.cfg.keyframe_voxel_size_m).astype(np.float32),
+            fitness=fitness,
+            rmse_m=rmse_m,
+        )
+        previous = state.keyframe
+        if previous is not None and (previous.visit == kf.visit or state.link_previous):
+            measured = inverse(previous.pose) @ kf.pose
+            self.edges.append(PoseEdge(previous.id, kf.id, measured,
+                                       _odometry_information(self.cfg, measured), "odometry",
+                                       fitness))
+        self.keyframes.append(kf)
+        state.keyframe = kf
+        for pending_ns, pending_pose in self._pending:
+            self.scan_poses.append(ScanPose(pending_ns, kf.id, inverse(kf.pose) @ pending_pose))
+        if self._pending:
+            self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
+            self._pending.clear()
+        loops = self.loops.add(kf)
+        if self.planar:  # verified in 3D on flat clouds: keep only what a 2D scan measures
+            loops = [PoseEdge(e.i, e.j, yaw_pose(yaw_rad(e.measured),
+                                                 np.array([e.measured[0, 3], e.measured[1, 3], 0.0])),
+                              e.information, e.kind, e.fitness) for e in loops]
+        self.edges.extend(loops)
+
+    def _start_visit(self, segment: Segment, stamp_ns: int) -> None:
+        """A new floor visit: after a ride the map restarts at the held pose, z from the floor."""
+        state = self.state
+        previous_start = self.timeline.visits[state.visit][1] if state.visit >= 0 else None
+        state.visit = segment.visit
+        state.map_pose = None  # the first scan of a visit is always a keyframe
+        if previous_start is None:
+            return
+        rides = [tr for tr in self.timeline.transitions
+                 if tr.kind == TransitionKind.ELEVATOR and previous_start <= tr.start_ns < stamp_ns]
+        state.link_previous = not rides
+        if rides:
+            # The pose before the ride is still state.pose (ride scans do not move it).
+            pose = state.pose if self.planar else self.motion.level(
+                state.pose, rides[-1].start_ns, rides[-1].end_ns)
+            pose = pose.copy()
+            pose[2, 3] = self.elevation.get(segment.floor_id, pose[2, 3])
+            state.pose = pose
+            state.stamp_ns = stamp_ns
+            state.delta = np.eye(4)
+            self.matcher.map.clear()
+            if self.cabin is not None:
+                self.cabin.visit_started(pose)
+        # else: stairs or a gap: the odometry and its local map simply continue.
+
+    def _ride_scan(self, stamp_ns: int, segment: Segment) -> None:
+        """Inside the elevator: x, y, yaw held; z follows the filtered barometric height."""
+        state = self.state
+        tr = segment.transition
+        assert tr is not None
+        pose = state.pose.copy()  # the pose before the ride, not updated during it
+        pose[2, 3] += self._height(stamp_ns) - self._height(tr.start_ns)
+        if state.keyframe is None:
+            self._pending.append((stamp_ns, pose))
+        else:
+            self.scan_poses.append(ScanPose(stamp_ns, state.keyframe.id,
+                                            inverse(state.keyframe.pose) @ pose))
+
+    def _height(self, stamp_ns: int) -> float:
+        if len(self.seg.stamp_ns) == 0:
+            return 0.0
+        return float(np.interp(stamp_ns, self.seg.stamp_ns, self.seg.height_filtered_m))
+
+    def result(self) -> MappingResult:
+        if self._pending and not self.keyframes:
+            self.warnings.append("no keyframe could be made: no usable lidar scans")
+        elif self._pending:
+            # A visit that ended before its first keyframe: its scans hang on the last keyframe.
+            last = self.keyframes[-1]
+            self.scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ pose)
+                                   for ns, pose in self._pending)
+            self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
+            self._pending.clear()
+        stats = {
+            "scans": float(len(self.scan_poses)),
+            "registered": float(self.registered),
+            "registration_failures": float(self.matcher.failures),
+            "keyframes": float(len(self.keyframes)),
+            "odometry_edges": float(sum(e.kind == "odometry" for e in self.edges)),
+            "loop_edges": float(sum(e.kind == "loop" for e in self.edges)),
+            "loop_candidates": float(self.loops.stats.candidates),
+            "loop_rejected_fitness": float(self.loops.stats.rejected_fitness),
+            "loop_rejected_ambiguous": float(self.loops.stats.rejected_ambiguous),
+            "loop_rejected_degenerate": float(self.loops.stats.rejected_degenerate),
+            "loop_rejected_implausible": float(self.loops.stats.rejected_implausible),
+            "max_local_map_points": float(self.max_map_points),
+            "in_cabin_scans": float(self.in_cabin_scans),
+            "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
+        }
+        if self.matcher.failures:
+            self.warnings.append(
+                f"{self.matcher.failures} scans could not be registered (motion prior used)")
+        return MappingResult(self.keyframes, self.edges, self.scan_poses, self.warnings, stats)
