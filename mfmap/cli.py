@@ -7,6 +7,7 @@ Every MfmapError becomes one red line on stderr and exit code 1 (tracebacks only
 from __future__ import annotations
 
 import json
+import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -32,7 +33,9 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
-console = Console()
+# Tables stay readable when output goes to a file or CI log (rich assumes 80 columns there).
+_WIDTH = None if sys.stdout.isatty() or "COLUMNS" in os.environ else 140
+console = Console(width=_WIDTH)
 err_console = Console(stderr=True)
 
 # Exit codes: 1 user error (bad input, bad config), 3 a --fail-above threshold was exceeded.

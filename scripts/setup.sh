@@ -32,7 +32,7 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "
 fi
 echo "setup: installing mfmap and its dependencies into $VENV"
 "$VENV/bin/python" -m pip install -q --upgrade "pip>=25.1"
-"$VENV/bin/python" -m pip install -q -e . --group dev
+"$VENV/bin/python" -m pip install -q -e ".[ray]" --group dev
 # Peers used by the benchmarks and cross-checks (not runtime dependencies of mfmap).
 "$VENV/bin/python" -m pip install -q -r requirements-peers.txt
 echo "$want" > "$stamp"

@@ -26,14 +26,16 @@ def sim_run() -> Callable[..., Path]:
     """sim_run(scenario, fmt="mcap", seed=0) -> folder holding the log and its ground truth."""
 
     def run(scenario: str, fmt: str = "mcap", seed: int = 0, **kwargs: object) -> Path:
-        from mfmap.sim import simulate
+        from mfmap.sim import simulate, source_digest
 
         extra = "-".join(f"{k}={v}" for k, v in sorted(kwargs.items()))
         folder = SIM_CACHE / f"{scenario}-{fmt}-{seed}{('-' + extra) if extra else ''}"
         done = folder / ".complete"
-        if not done.exists():
+        # The marker holds the simulator's source digest, so a changed simulator regenerates.
+        digest = source_digest()
+        if not done.exists() or done.read_text().strip() != digest:
             simulate(scenario, folder, fmt=fmt, seed=seed, **kwargs)  # type: ignore[arg-type]
-            done.write_text("ok\n")
+            done.write_text(digest + "\n")
         return folder
 
     return run

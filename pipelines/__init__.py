@@ -1,0 +1,1 @@
+"""Batch jobs built on the mfmap library: regression over many logs, benchmarks."""

@@ -1,0 +1,64 @@
+"""The benchmark's measuring and tables (the figures themselves are printed, never asserted)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from pipelines.benchmark import BuildFigures, run_child, scaling_table, tum_span_s
+
+
+def test_child_peak_memory_is_the_childs_own() -> None:
+    """A child that holds 300 MB reports at least that; a bare interpreter far less."""
+    big = run_child([sys.executable, "-c", "b = bytearray(300 * 2**20); b[::4096] = b'x' * len(b[::4096]); print(7)"])
+    small = run_child([sys.executable, "-c", "print(1)"])
+    assert big.ok and big.stdout.strip() == "7"
+    assert big.peak_rss_mb > 300
+    assert small.peak_rss_mb < 100
+    failed = run_child([sys.executable, "-c", "import sys; sys.exit(3)"])
+    assert failed.returncode == 3 and not failed.ok
+
+
+def test_tum_span(tmp_path: Path) -> None:
+    path = tmp_path / "t.tum"
+    path.write_text("# t x y z qx qy qz qw\n100.0 0 0 0 0 0 0 1\n100.5 0 0 0 0 0 0 1\n160.25 1 0 0 0 0 0 1\n")
+    assert tum_span_s(path) == (60.25, 3)
+
+
+def _fig(scale: float, wall_s: float, rss_mb: float) -> BuildFigures:
+    return BuildFigures(f"x{scale:g}", "log.mcap", 60.0 * scale, int(600 * scale), wall_s, rss_mb, True)
+
+
+def test_scaling_verdict_against_the_issue_limits() -> None:
+    scales = [1.0, 2.0, 4.0]
+    text, verdict = scaling_table([_fig(1, 10.0, 400.0), _fig(2, 20.5, 420.0), _fig(4, 43.0, 590.0)], scales)
+    assert verdict["time_ratio"] == 4.3 and verdict["time_ok"]
+    assert verdict["memory_ratio"] == 1.475 and verdict["memory_ok"]
+    assert "| 4x | 240.0 | 4.00x | 2400 | 43.00 | 4.30x | 590 | 1.48x | 55.8 |" in text
+    assert "PASS" in text and "FAIL" not in text
+    _, bad = scaling_table([_fig(1, 10.0, 400.0), _fig(2, 25.0, 500.0), _fig(4, 45.0, 610.0)], scales)
+    assert not bad["time_ok"] and not bad["memory_ok"]
+
+
+def test_pin_cpus_claims_a_free_cpu(tmp_path: Path) -> None:
+    """A worker pinned for determinism takes a CPU no other worker holds (pinning is per process,
+    so the pinning runs in a child while this test holds the first CPU's lock)."""
+    import fcntl
+
+    code = (
+        "import os, sys; from pathlib import Path; sys.path.insert(0, sys.argv[2]);"
+        "from pipelines.regress.runner import pin_cpus;"
+        "print(pin_cpus(1, Path(sys.argv[1])), sorted(os.sched_getaffinity(0)))"
+    )
+    argv = [sys.executable, "-c", code, str(tmp_path), str(Path(__file__).resolve().parents[2])]
+    cpus = sorted(os.sched_getaffinity(0))
+    free = run_child(argv)
+    assert free.ok, free.stderr_tail
+    assert free.stdout.split() == [f"[{cpus[0]}]"] * 2  # claimed the first CPU and runs on it
+    if len(cpus) < 2:
+        return
+    with (tmp_path / f"cpu{cpus[0]}.lock").open("w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        busy = run_child(argv)
+    assert busy.stdout.split() == [f"[{cpus[1]}]"] * 2  # the first is held: the next one
