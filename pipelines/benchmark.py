@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipelines.regress.compare import write_text_atomic
+from mfmap.atomic import write_text_atomic
 from pipelines.regress.manifest import DEFAULT_SIM_CACHE, Simulate
 from pipelines.regress.runner import SIM_LOG_NAME, ensure_simulated
 

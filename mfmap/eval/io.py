@@ -9,15 +9,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from mfmap.atomic import atomic_open
 from mfmap.errors import GroundTruthError, MfmapError, OutputError
 
 F64 = npt.NDArray[np.float64]
@@ -107,7 +105,7 @@ def write_ply(path: Path, xyz: np.ndarray, floor: np.ndarray | None = None) -> N
     header += f"element vertex {len(xyz)}\n"
     header += "".join(f"property {ply_type[code]} {name}\n" for name, code in fields)
     header += "end_header\n"
-    with _atomic(path, "wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(header.encode("ascii"))
         data.tofile(f)
 
@@ -352,27 +350,3 @@ def check_build(out_dir: Path, needed: list[str]) -> None:
 # ---------------------------------------------------------------------------------- writing
 
 
-class _atomic:
-    """Open a temp file beside `path`; on success rename it into place."""
-
-    def __init__(self, path: Path, mode: str) -> None:
-        self.path = path
-        self.mode = mode
-
-    def __enter__(self) -> Any:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
-        self.f = os.fdopen(fd, self.mode)
-        return self.f
-
-    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
-        self.f.close()
-        if exc_type is None:
-            os.replace(self.tmp, self.path)
-        else:
-            Path(self.tmp).unlink(missing_ok=True)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    with _atomic(path, "w") as f:
-        f.write(text)

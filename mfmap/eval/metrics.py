@@ -182,7 +182,7 @@ class EvalResult:
 
     def write_json(self, path: Path) -> None:
         """eval.json with every figure, written atomically."""
-        from mfmap.eval.io import write_text_atomic
+        from mfmap.atomic import write_text_atomic
 
         write_text_atomic(path, json.dumps(self.to_json(), indent=2) + "\n")
 

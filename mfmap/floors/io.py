@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mfmap.atomic import write_text_atomic
 from mfmap.errors import LogError, OutputError
 from mfmap.types import FloorSegmentation, PressureSeries
 
@@ -147,12 +146,8 @@ def segmentation_to_json(seg: FloorSegmentation) -> dict[str, Any]:
 def write_floors_json(seg: FloorSegmentation, path: Path) -> None:
     """Write floors.json atomically (temp file in the same folder, then rename)."""
     text = json.dumps(segmentation_to_json(seg), indent=2) + "\n"
-    folder = path.parent
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
+        write_text_atomic(path, text)
     except OSError as err:
         raise OutputError(f"cannot write floors.json ({err.strerror or err})", path) from err
 

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from mfmap.atomic import atomic_path
 from mfmap.errors import OutputError
 from mfmap.types import FloorSegmentation, TransitionKind
 
@@ -74,10 +73,8 @@ def plot_segmentation(seg: FloorSegmentation, png_path: Path, title: str = "") -
     fig.tight_layout()
     fig.subplots_adjust(right=0.86)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{png_path.name}.", suffix=".png", dir=png_path.parent)
-        os.close(fd)
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, png_path)
+        with atomic_path(png_path) as tmp:
+            fig.savefig(tmp, dpi=110)
     except OSError as err:
         raise OutputError(f"cannot write the plot ({err.strerror or err})", png_path) from err
     finally:

@@ -15,7 +15,6 @@ and its ceiling, i.e. the underside of the slab above).
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -23,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from mfmap.atomic import atomic_open, write_bytes_atomic
 from mfmap.baro import T0_K, pressure_from_height
 from mfmap.sim.building import (
     SHAFT_CENTER,
@@ -50,9 +50,7 @@ def epoch_s(start_ns: int, t_s: float) -> float:
 
 
 def _atomic_write(path: Path, data: bytes) -> Path:
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    write_bytes_atomic(path, data)
     return path
 
 
@@ -177,9 +175,8 @@ def write_ply(
         f"element vertex {total}\n"
         "property float x\nproperty float y\nproperty float z\nproperty int floor\nend_header\n"
     )
-    tmp = path.with_name(f".{path.name}.partial")
     written = 0
-    with tmp.open("wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(header.encode())
         for xyz, floor in chunks:
             rec = np.empty(len(xyz), dtype=_PLY_DTYPE)
@@ -187,9 +184,8 @@ def write_ply(
             rec["floor"] = floor
             f.write(rec.tobytes())
             written += len(rec)
-    if written != total:
-        raise AssertionError(f"PLY header says {total} points, wrote {written}")
-    os.replace(tmp, path)
+        if written != total:
+            raise AssertionError(f"PLY header says {total} points, wrote {written}")
     return path
 
 

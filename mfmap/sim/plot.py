@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from mfmap.atomic import atomic_path
 from mfmap.sim.building import SLAB_M, Building, Kind
 from mfmap.sim.sensors import Barometer
 from mfmap.sim.trajectory import RATE_HZ, Trajectory
@@ -21,9 +21,8 @@ _COLORS = {
 
 
 def _save(fig: object, path: Path) -> Path:
-    tmp = path.with_name(f".{path.stem}.partial.png")
-    fig.savefig(tmp, dpi=110)  # type: ignore[attr-defined]
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)  # type: ignore[attr-defined]
     return path
 
 

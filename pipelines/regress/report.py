@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from pipelines.regress.compare import write_text_atomic
+from mfmap.atomic import write_text_atomic
 from pipelines.regress.model import CheckStatus, LogResult, RunResult, Verdict
 
 # How many regressed metrics a summary row names before "and N more".

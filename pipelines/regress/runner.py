@@ -24,6 +24,7 @@ from typing import Any
 
 import yaml
 
+from mfmap.config import merge_dicts
 from mfmap.errors import MfmapError
 from pipelines.regress.compare import (
     flatten_metrics,
@@ -79,27 +80,17 @@ def _read_mapping(path: Path) -> dict[str, Any]:
     return data
 
 
-def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def resolve_config(manifest: Manifest, entry: LogEntry) -> dict[str, Any]:
     """Defaults <- manifest config file <- manifest overrides <- log config file <- log overrides."""
     from mfmap.config import config_from_dict
 
     data: dict[str, Any] = {}
     if manifest.config is not None:
-        data = _merge(data, _read_mapping(manifest.config))
-    data = _merge(data, manifest.config_overrides)
+        data = merge_dicts(data, _read_mapping(manifest.config))
+    data = merge_dicts(data, manifest.config_overrides)
     if entry.config is not None:
-        data = _merge(data, _read_mapping(entry.config))
-    data = _merge(data, entry.config_overrides)
+        data = merge_dicts(data, _read_mapping(entry.config))
+    data = merge_dicts(data, entry.config_overrides)
     source = manifest.source if manifest.source is not None else Path("<manifest>")
     try:
         config = config_from_dict(data, f"{source} (logs[{entry.name}])")
