@@ -72,7 +72,10 @@ class ChildRun:
 
 
 def run_child(argv: list[str], env: dict[str, str] | None = None) -> ChildRun:
-    """Run a command; wall time and the child's own peak RSS (wait4's ru_maxrss)."""
+    """Run a command; wall time and the child's own peak RSS (wait4's ru_maxrss).
+
+    Linux carries the peak RSS across fork and exec, so the figure is at least this process's RSS
+    at spawn: callers keep the measuring process small (this module imports nothing heavy)."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         start = time.perf_counter()
         proc = subprocess.Popen(argv, stdout=out, stderr=err, env=env)

@@ -155,11 +155,14 @@ def test_ray_run_equals_local_run(
 
 
 def test_worse_config_fails_naming_the_metric(tmp_path: Path) -> None:
-    """Inter-floor registration off: the upper floor is placed worse relative to the lower."""
+    """Inter-floor registration and elevator continuity off: nothing but the odometry across the
+    ride places floor 1 over floor 0, and the upper floor's error is what regresses."""
     data = yaml.safe_load(QUICK.read_text())
     data["baseline"] = str(QUICK_BASELINE)
     data["logs"] = [e for e in data["logs"] if e["name"] == "tiny"]
-    data["config_overrides"] = {"graph": {"inter_floor_registration": False}}
+    data["config_overrides"] = {
+        "graph": {"inter_floor_registration": False, "elevator_continuity": False}
+    }
     path = tmp_path / "worse.yaml"
     path.write_text(yaml.safe_dump(data))
     run = run_regression(load_manifest(path), tmp_path / "out", workers=1)
@@ -167,11 +170,9 @@ def test_worse_config_fails_naming_the_metric(tmp_path: Path) -> None:
     (tiny,) = run.results
     assert tiny.verdict is Verdict.REGRESSED
     regressed = [c.metric for c in tiny.regressions]
-    # The placement of floor 1 relative to floor 0 (x, y or yaw at the connector; which one
-    # depends on how the ride's odometry drifts) is what the switch guards.
-    inter = [m for m in regressed if m.startswith("floors.inter.")]
-    assert inter, regressed
-    # The start floor, which the switch cannot touch, keeps its checkpoint accuracy.
+    inter = [m for m in regressed if m.startswith("trajectory.floor1.")]
+    assert inter == ["trajectory.floor1.ape_rmse_m"], regressed
+    # The start floor, which the switches cannot touch, keeps its checkpoint accuracy.
     assert "points.floor0.rmse_m" not in regressed
     summary = (tmp_path / "out" / "summary.md").read_text()
     row = next(line for line in summary.splitlines() if line.startswith("| tiny |"))
