@@ -176,12 +176,12 @@ def bench_mcap_floor(log: Path) -> PeerFigures:
     )
 
 
-def bench_ingest_decode(log: Path) -> PeerFigures:
-    """mfmap's ingest decoding every lidar scan (pipelines/bench_ingest.py's decode mode)."""
-    run = run_child([sys.executable, str(HERE / "bench_ingest.py"), "--measure", "decode", "--log", str(log)])
+def _peer(name: str, argv: list[str], env: dict[str, str] | None = None) -> PeerFigures:
+    """Run a peer as a child that prints its figures as a JSON line last."""
+    run = run_child(argv, env)
     data = _last_json(run.stdout)
     return PeerFigures(
-        "mfmap ingest decode",
+        name,
         run.wall_s,
         run.peak_rss_mb,
         run.ok and bool(data),
@@ -189,22 +189,18 @@ def bench_ingest_decode(log: Path) -> PeerFigures:
         float(data.get("wall_s", 0.0)),
         run.stderr_tail,
     )
+
+
+def bench_ingest_decode(log: Path) -> PeerFigures:
+    """mfmap's ingest decoding every lidar scan (pipelines/bench_ingest.py's decode mode)."""
+    argv = [sys.executable, str(HERE / "bench_ingest.py"), "--measure", "decode", "--log", str(log)]
+    return _peer("mfmap ingest decode", argv)
 
 
 def bench_kiss_icp(folder: Path, threads: int | None) -> PeerFigures:
     """KISS-ICP odometry on the first floor visit (pipelines/bench_odometry.py's kiss child)."""
     argv = [sys.executable, str(HERE / "bench_odometry.py"), "--folder", str(folder), "--child", "kiss"]
-    run = run_child(argv, _env(threads))
-    data = _last_json(run.stdout)
-    return PeerFigures(
-        "KISS-ICP odometry",
-        run.wall_s,
-        run.peak_rss_mb,
-        run.ok and bool(data),
-        int(data.get("scans", 0)),
-        float(data.get("wall_s", 0.0)),
-        run.stderr_tail,
-    )
+    return _peer("KISS-ICP odometry", argv, _env(threads))
 
 
 def _last_json(text: str) -> dict[str, Any]:
