@@ -12,7 +12,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from mfmap.errors import ConfigError
+from mfmap.errors import ConfigError, MfmapError
 from mfmap.eval.config import EvalConfig
 from mfmap.export.config import ExportConfig
 from mfmap.floors.config import FloorsConfig
@@ -59,21 +59,26 @@ def config_from_dict(data: dict[str, Any], source: Path | str = "<config>") -> M
         raise ConfigError(_describe(err), source) from err
 
 
+def read_yaml_mapping(path: Path, error: type[MfmapError] = ConfigError) -> dict[str, Any]:
+    """A config YAML file as a dict (an empty file is {}); problems raise `error` naming the file."""
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise error(f"not valid YAML ({err.__class__.__name__})", path) from err
+    if loaded is None:
+        return {}
+    if not isinstance(loaded, dict):
+        raise error("expected a mapping of stage names at the top level", path)
+    return loaded
+
+
 def load_config(path: Path | None, overrides: dict[str, Any] | None = None) -> MfmapConfig:
     """Defaults, then the YAML file (if any), then overrides (nested dict)."""
     data: dict[str, Any] = {}
     if path is not None:
         if not path.is_file():
             raise ConfigError("config file not found", path)
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise ConfigError(f"not valid YAML ({err.__class__.__name__})", path) from err
-        if loaded is None:
-            loaded = {}
-        if not isinstance(loaded, dict):
-            raise ConfigError("expected a mapping of stage names at the top level", path)
-        data = loaded
+        data = read_yaml_mapping(path)
     if overrides:
         data = merge_dicts(data, overrides)
     return config_from_dict(data, path if path is not None else "<config>")

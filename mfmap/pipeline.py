@@ -469,25 +469,31 @@ def _finish_report(folder: Path, timings: dict[str, float], elapsed_s: float, lo
 def render_summary(result: BuildResult) -> RenderableType:
     """Floors, elevations, transitions, time taken, real-time factor, where the outputs are."""
     from rich.console import Group
-    from rich.table import Table
     from rich.text import Text
 
-    floors = Table(title="floors", title_justify="left")
-    for col in ("floor", "elevation [m]", "visits", "connectors"):
-        floors.add_column(col, justify="right")
+    from mfmap.tables import Justify, table
+
+    def right(*headers: str) -> list[tuple[str, Justify]]:
+        return [(h, "right") for h in headers]
+
+    floors = table(right("floor", "elevation [m]", "visits", "connectors"), title="floors", title_justify="left")
     for f in result.floors:
         floors.add_row(str(f["id"]), f"{f['elevation_m']:+.3f}", str(len(f["visits"])),
                        ",".join(str(c) for c in f["connectors"]) or "-")
-    transitions = Table(title="transitions", title_justify="left")
-    for col in ("kind", "from", "to", "height change [m]", "duration [s]", "x, y"):
-        transitions.add_column(col, justify="right")
+    transitions = table(
+        right("kind", "from", "to", "height change [m]", "duration [s]", "x, y"),
+        title="transitions",
+        title_justify="left",
+    )
     for t in result.transitions:
         xy = f"{t['x']:.2f}, {t['y']:.2f}" if "x" in t else "-"
         transitions.add_row(t["kind"], str(t["from"]), str(t["to"]), f"{t['height_change_m']:+.3f}",
                             f"{t['t_end'] - t['t_start']:.1f}", xy)
-    factors = Table(title="factor graph", title_justify="left")
-    for col in ("factor", "count", "final error", "outliers", "rejected"):
-        factors.add_column(col, justify="right")
+    factors = table(
+        right("factor", "count", "final error", "outliers", "rejected"),
+        title="factor graph",
+        title_justify="left",
+    )
     for name, stats in result.graph.get("factors", {}).items():
         factors.add_row(name, str(stats["count"]), f"{stats['error_final']:.3g}", str(stats["outliers"]),
                         str(stats["rejected"]))

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from rich.console import Group, RenderableType
-from rich.table import Table
 from rich.text import Text
 
+from mfmap.tables import table
 from mfmap.types import FloorSegmentation
+
+_PLAIN = dict(show_header=True, header_style="bold", box=None, pad_edge=False)
 
 
 def _rel_s(stamp_ns: int, start_ns: int) -> str:
@@ -22,23 +24,25 @@ def render_floors(seg: FloorSegmentation) -> RenderableType:
         (f"{len(seg.floors)} floors, {len(seg.transitions)} transitions", "bold"),
         f"  over {duration_s:.1f} s of barometer ({len(seg.stamp_ns)} samples); times in s from the first",
     )
-    floors = Table(show_header=True, header_style="bold", box=None, pad_edge=False)
-    for col, justify in (("floor", "right"), ("elevation m", "right"), ("pressure Pa", "right"), ("visits", "left")):
-        floors.add_column(col, justify=justify)  # type: ignore[arg-type]
+    floors = table(
+        [("floor", "right"), ("elevation m", "right"), ("pressure Pa", "right"), ("visits", "left")],
+        **_PLAIN,
+    )
     for f in sorted(seg.floors, key=lambda f: -f.elevation_m):
         visits = ", ".join(f"{_rel_s(a, start_ns)}-{_rel_s(b, start_ns)}" for a, b in f.visits)
         floors.add_row(str(f.id), f"{f.elevation_m:+.2f}", f"{f.pressure_pa:.1f}", visits)
-    trans = Table(show_header=True, header_style="bold", box=None, pad_edge=False)
-    for col, justify in (
-        ("kind", "left"),
-        ("from", "right"),
-        ("to", "right"),
-        ("start s", "right"),
-        ("end s", "right"),
-        ("duration s", "right"),
-        ("height m", "right"),
-    ):
-        trans.add_column(col, justify=justify)  # type: ignore[arg-type]
+    trans = table(
+        [
+            ("kind", "left"),
+            ("from", "right"),
+            ("to", "right"),
+            ("start s", "right"),
+            ("end s", "right"),
+            ("duration s", "right"),
+            ("height m", "right"),
+        ],
+        **_PLAIN,
+    )
     for t in seg.transitions:
         trans.add_row(
             t.kind.value,

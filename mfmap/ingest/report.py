@@ -5,10 +5,10 @@ from __future__ import annotations
 from datetime import datetime, timezone
 
 from rich.console import Group, RenderableType
-from rich.table import Table
 from rich.text import Text
 
 from mfmap.ingest.source import LogSummary
+from mfmap.tables import table
 
 
 def _clock(ns: int | None, date: bool = False) -> str:
@@ -25,17 +25,21 @@ def render_info(summary: LogSummary) -> RenderableType:
         f"  format {summary.format}  duration {summary.duration_s:.3f} s  "
         f"{summary.message_count} messages  {_clock(summary.start_ns, True)} .. {_clock(summary.end_ns, True)} UTC",
     )
-    table = Table(show_header=True, header_style="bold", box=None, pad_edge=False)
-    for col, justify in (
-        ("topic", "left"),
-        ("type", "left"),
-        ("role", "left"),
-        ("count", "right"),
-        ("rate Hz", "right"),
-        ("first (UTC)", "left"),
-        ("last (UTC)", "left"),
-    ):
-        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    topics = table(
+        [
+            ("topic", "left"),
+            ("type", "left"),
+            ("role", "left"),
+            ("count", "right"),
+            ("rate Hz", "right"),
+            ("first (UTC)", "left"),
+            ("last (UTC)", "left"),
+        ],
+        show_header=True,
+        header_style="bold",
+        box=None,
+        pad_edge=False,
+    )
     for t in summary.topics:
         if t.role is not None:
             role = Text(t.role.value, style="green")
@@ -43,7 +47,7 @@ def render_info(summary: LogSummary) -> RenderableType:
             role = Text(f"({t.candidate_for.value}: not chosen)", style="yellow")
         else:
             role = Text("-", style="dim")
-        table.add_row(
+        topics.add_row(
             t.name,
             t.msgtype or "?",
             role,
@@ -52,4 +56,4 @@ def render_info(summary: LogSummary) -> RenderableType:
             _clock(t.first_ns),
             _clock(t.last_ns),
         )
-    return Group(head, table)
+    return Group(head, topics)

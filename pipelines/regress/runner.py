@@ -22,9 +22,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from mfmap.config import merge_dicts
+from mfmap.config import merge_dicts, read_yaml_mapping
 from mfmap.errors import MfmapError
 from pipelines.regress.compare import (
     flatten_metrics,
@@ -68,28 +66,16 @@ class JobError(Exception):
 # Jobs from a manifest
 
 
-def _read_mapping(path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise ManifestError(f"config is not readable YAML ({err.__class__.__name__})", path) from err
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ManifestError("config: expected a mapping of stage names at the top level", path)
-    return data
-
-
 def resolve_config(manifest: Manifest, entry: LogEntry) -> dict[str, Any]:
     """Defaults <- manifest config file <- manifest overrides <- log config file <- log overrides."""
     from mfmap.config import config_from_dict
 
     data: dict[str, Any] = {}
     if manifest.config is not None:
-        data = merge_dicts(data, _read_mapping(manifest.config))
+        data = merge_dicts(data, read_yaml_mapping(manifest.config, ManifestError))
     data = merge_dicts(data, manifest.config_overrides)
     if entry.config is not None:
-        data = merge_dicts(data, _read_mapping(entry.config))
+        data = merge_dicts(data, read_yaml_mapping(entry.config, ManifestError))
     data = merge_dicts(data, entry.config_overrides)
     source = manifest.source if manifest.source is not None else Path("<manifest>")
     try:
