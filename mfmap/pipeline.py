@@ -14,7 +14,7 @@ import resource
 import shutil
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -109,6 +109,14 @@ def build(
             timings["mapping"] = time.perf_counter() - t0
             if not mapping.keyframes:
                 raise MissingDataError("no keyframes: the lidar gave no usable scans", log)
+            if pressure is None:
+                climb = lidar_floor_change(mapping.keyframes, cfg.floors.min_floor_height_m)
+                if climb is not None:
+                    raise MissingDataError(
+                        f"no barometer in the log, but the lidar odometry {climb}: the robot changed "
+                        "floors, and a multi-floor map needs the barometer (topic role 'baro')",
+                        log,
+                    )
 
             t0 = time.perf_counter()
             graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, progress)
@@ -196,6 +204,27 @@ def segment_floors(
     elif imu is not None and len(imu) > 1:
         motion = motion_from_imu(imu, cfg.floors)
     return pressure, segment_pressure(pressure, motion, cfg.floors)
+
+
+def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float) -> str | None:
+    """What the lidar odometry says about a change of floor in a log without barometer.
+
+    Without a barometer the log is mapped as one floor, which is only right when the robot stayed
+    on it: stairs show up in the lidar odometry as a climb (z is free there). Returns a phrase
+    describing the largest climb or descent of at least `min_floor_height_m`, else None.
+    """
+    kfs = sorted(keyframes, key=lambda k: k.stamp_ns)
+    if len(kfs) < 2:
+        return None
+    z = np.array([k.pose[2, 3] for k in kfs], dtype=np.float64)
+    lo, hi = int(np.argmin(z)), int(np.argmax(z))
+    if z[hi] - z[lo] < min_floor_height_m:
+        return None
+    first, last = sorted((lo, hi))
+    verb = "climbs" if z[last] > z[first] else "descends"
+    t0_s = (kfs[first].stamp_ns - kfs[0].stamp_ns) / 1e9
+    t1_s = (kfs[last].stamp_ns - kfs[0].stamp_ns) / 1e9
+    return f"{verb} {abs(z[last] - z[first]):.1f} m between {t0_s:.0f} s and {t1_s:.0f} s"
 
 
 def single_floor(start_ns: int, end_ns: int) -> FloorSegmentation:
