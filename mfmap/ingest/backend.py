@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import mmap
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, BinaryIO, Protocol
 
 
 @dataclass
@@ -63,3 +64,28 @@ def normalise_msgtype(name: str) -> str:
     if len(parts) == 2 and all(parts):
         return f"{parts[0]}/msg/{parts[1]}"
     return name
+
+
+def map_file_range(f: BinaryIO, offset: int, length: int) -> memoryview:
+    """`length` bytes of the file at `offset`, memory-mapped (read() where mmap is refused).
+
+    A read() copies the chunk out of the page cache, and that copy costs about as much as
+    decoding the scans in it. The mapping is unmapped when the last view of it is dropped.
+    The file must not shrink while it is read (a log that is finished and indexed does not).
+    """
+    base = offset - offset % mmap.ALLOCATIONGRANULARITY
+    try:
+        mapped = mmap.mmap(
+            f.fileno(),
+            offset + length - base,
+            flags=mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0),
+            prot=mmap.PROT_READ,
+            offset=base,
+        )
+    except (OSError, ValueError, AttributeError):  # AttributeError: no MAP_SHARED (Windows)
+        f.seek(offset)
+        data = f.read(length)
+        if len(data) != length:
+            raise OSError(f"cannot read {length} bytes at offset {offset}") from None
+        return memoryview(data)
+    return memoryview(mapped)[offset - base :]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import heapq
 import sqlite3
+import struct
 from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import Any
@@ -11,15 +12,16 @@ from typing import Any
 import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Reader as Reader1
+from rosbags.rosbag1.reader import decompressors as rosbag1_decompressors
 from rosbags.typesys import Stores, get_typestore
 
 from mfmap.errors import DecodeError, LogError
-from mfmap.ingest.backend import RawMessage, RawTopic, normalise_msgtype
+from mfmap.ingest.backend import RawMessage, RawTopic, map_file_range, normalise_msgtype
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 
 
-def _sqlite_files(folder: Path) -> list[Path]:
+def sqlite_files(folder: Path) -> list[Path]:
     """The .db3 files of an uncompressed sqlite3 bag in metadata order ([] otherwise)."""
     try:
         info = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
@@ -54,7 +56,7 @@ class RosbagsBackend:
         self.warnings: list[str] = []
         if fmt == "ros1":
             check_bag_file(path)
-        self._db_files = _sqlite_files(path) if fmt == "ros2" else []
+        self._db_files = sqlite_files(path) if fmt == "ros2" else []
         # ROS 2 bags written before Iron carry no message definitions: fall back to the
         # standard definitions for the common types.
         default = get_typestore(Stores.LATEST) if fmt == "ros2" else None
@@ -125,8 +127,14 @@ class RosbagsBackend:
             yield from self._iter_sqlite(conns, start_ns, end_ns)
             return
         stop = None if end_ns is None else end_ns + 1
+        subs = self.reader.readers
+        messages = (
+            _iter_ros1(subs[0], conns, start_ns, stop)
+            if len(subs) == 1 and isinstance(subs[0], Reader1)
+            else self.reader.messages(connections=conns, start=start_ns, stop=stop)
+        )
         try:
-            for conn, t, raw in self.reader.messages(connections=conns, start=start_ns, stop=stop):
+            for conn, t, raw in messages:
                 yield RawMessage(conn.topic, int(t), (conn, raw))
         except LogError:
             raise
@@ -179,6 +187,66 @@ class RosbagsBackend:
     def close(self) -> None:
         if self.reader.stack is not None:
             self.reader.close()
+
+
+_ROS1_NO_COMPRESSION = rosbag1_decompressors["none"]
+_OP_MSG_DATA, _OP_CONNECTION = 2, 7
+_U32 = struct.Struct("<I")
+
+
+def _iter_ros1(
+    reader: Reader1, conns: list[Any], start_ns: int | None, stop_ns: int | None
+) -> Iterator[tuple[Any, int, memoryview]]:
+    """Reader1.messages() with each message a zero-copy view into its chunk.
+
+    The same index walk and order as rosbags; an uncompressed chunk is memory-mapped instead of
+    read, and no message is copied out of its chunk (rosbags copies every chunk twice).
+    """
+    connmap = {c.id: c for c in reader.connections}
+    wanted = {c.id for c in conns}
+    indexes = [reader.indexes[cid] for cid in sorted(wanted)]
+    chunk_pos, chunk = -1, memoryview(b"")
+    with reader.path.open("rb") as f:
+        for entry in heapq.merge(*indexes):
+            if start_ns is not None and entry.time < start_ns:
+                continue
+            if stop_ns is not None and entry.time >= stop_ns:
+                return
+            if entry.chunk_pos != chunk_pos:
+                info = reader.chunks[entry.chunk_pos]
+                if info.decompressor is _ROS1_NO_COMPRESSION:
+                    chunk = map_file_range(f, info.datapos, info.datasize)
+                else:
+                    f.seek(info.datapos)
+                    chunk = memoryview(info.decompressor(f.read(info.datasize)))
+                chunk_pos = entry.chunk_pos
+            pos = entry.offset
+            while True:  # connection records may precede the message
+                (hlen,) = _U32.unpack_from(chunk, pos)
+                fields = _record_fields(chunk[pos + 4 : pos + 4 + hlen])
+                (dlen,) = _U32.unpack_from(chunk, pos + 4 + hlen)
+                data_at = pos + 8 + hlen
+                if data_at + dlen > len(chunk):
+                    raise ValueError(f"message record runs past the end of the chunk at {chunk_pos}")
+                op = fields.get("op", b"\x00")[0]
+                if op != _OP_CONNECTION:
+                    break
+                pos = data_at + dlen
+            if op != _OP_MSG_DATA:
+                raise ValueError(f"no message data at offset {entry.offset} of the chunk at {chunk_pos}")
+            conn = connmap[_U32.unpack(fields["conn"])[0]]
+            yield conn, entry.time, chunk[data_at : data_at + dlen]
+
+
+def _record_fields(header: memoryview) -> dict[str, bytes]:
+    out: dict[str, bytes] = {}
+    pos = 0
+    while pos < len(header):
+        (n,) = _U32.unpack_from(header, pos)
+        name, _, value = bytes(header[pos + 4 : pos + 4 + n]).partition(b"=")
+        out[name.decode("ascii", errors="replace")] = value
+        pos += 4 + n
+    return out
 
 
 def _connect(db: Path) -> sqlite3.Connection:

@@ -35,6 +35,8 @@ DEFAULT_MAX_CLOUD_BYTES = 1 << 30
 
 _TIME_FIELDS = ("t", "time", "timestamp")
 
+_VOID12 = np.dtype((np.void, 12))
+
 
 def stamp_ns_of(msg: Any, log_time_ns: int) -> int:
     """Header stamp in int ns; the log time when the message has no header or a zero stamp."""
@@ -188,7 +190,24 @@ def decode_pointcloud2(
     data = msg.data
     buf = data if isinstance(data, (bytes, bytearray, memoryview)) else np.asarray(data)
     data_len = len(buf) if not isinstance(buf, np.ndarray) else int(buf.nbytes)
-    layout = cloud_layout(
+    key = getattr(msg, "layout_key", b"")
+    layout = _LAYOUTS.get((key, data_len, max_bytes)) if key else None
+    if layout is None:
+        layout = _layout_of(msg, data_len, where, max_bytes)
+        if key:
+            if len(_LAYOUTS) >= 64:
+                _LAYOUTS.clear()
+            _LAYOUTS[(key, data_len, max_bytes)] = layout
+    return decode_with_layout(layout, buf, stamp_ns, str(msg.header.frame_id), drop_zero)
+
+
+# Validated layouts by (serialised layout bytes, data length, size limit): the checks and the
+# dtypes are built once per sensor, not once per scan.
+_LAYOUTS: dict[tuple[bytes, int, int], CloudLayout] = {}
+
+
+def _layout_of(msg: Any, data_len: int, where: str, max_bytes: int) -> CloudLayout:
+    return cloud_layout(
         list(msg.fields),
         int(msg.height),
         int(msg.width),
@@ -199,7 +218,6 @@ def decode_pointcloud2(
         where,
         max_bytes,
     )
-    return decode_with_layout(layout, buf, stamp_ns, str(msg.header.frame_id), drop_zero)
 
 
 def decode_with_layout(
@@ -240,7 +258,13 @@ def decode_with_layout(
         # Gathered as opaque bytes: np.take on a structured dtype copies field by field.
         sel = np.take(recs.view(packed_bytes), np.flatnonzero(keep)).view(layout.span)
     if "xyz" in names:
-        xyz = np.array(sel["xyz"], dtype=np.float32, order="C")
+        # Copied as opaque 12-byte items, then viewed as floats: numpy copies a strided (N, 3)
+        # float array element by element, several times slower.
+        xyz_type, xyz_offset = layout.span.fields["xyz"][:2]  # type: ignore[index]
+        xyz_bytes = np.ndarray((sel.shape[0],), _VOID12, sel, xyz_offset, sel.strides).copy()
+        xyz = xyz_bytes.view(xyz_type.base).reshape(-1, 3)
+        if not xyz.dtype.isnative:
+            xyz = xyz.astype(np.float32)
     else:
         xyz = np.empty((sel.shape[0], 3), np.float32)
         xyz[:, 0], xyz[:, 1], xyz[:, 2] = sel["x"], sel["y"], sel["z"]
@@ -393,6 +417,23 @@ class PointCloud2Msg:
     row_step: int
     data: memoryview
     is_dense: bool
+    layout_key: bytes = b""  # the serialised height..row_step, for the layout cache
+
+
+@dataclass(frozen=True)
+class _WireLayout:
+    key: bytes  # encoding and byte order + block: what the layout cache is keyed on
+    block: bytes  # serialised height, width, fields, is_bigendian, point_step, row_step
+    height: int
+    width: int
+    fields: tuple[_PointField, ...]
+    is_bigendian: bool
+    point_step: int
+    row_step: int
+
+
+# The last layout parsed per wire encoding (a log has one or two lidars; a miss costs one parse).
+_LAST_LAYOUT: dict[tuple[str, str], _WireLayout] = {}
 
 
 class _Cursor:
@@ -448,33 +489,58 @@ def parse_pointcloud2(data: bytes | memoryview, encoding: str, where: str = "") 
             nanosec = c.u32()
             frame = c.string(nul=True)
         elif encoding == "ros1":
-            c = _Cursor(buf, 0, "<", 0, aligned=False)
+            order = "<"
+            c = _Cursor(buf, 0, order, 0, aligned=False)
             c.u32()  # seq
             sec, nanosec = c.u32(), c.u32()
             frame = c.string(nul=False)
         else:
             raise DecodeError(f"cannot parse PointCloud2 in encoding '{encoding}'", where)
-        height, width = c.u32(), c.u32()
-        fields = []
-        for _ in range(c.u32()):
-            name = c.string(nul=encoding == "cdr")
-            offset = c.u32()
-            datatype = c.u8()
-            fields.append(_PointField(name, offset, datatype, c.u32()))
-        is_bigendian = bool(c.u8())
-        point_step, row_step = c.u32(), c.u32()
+        # Everything from height to row_step (the fields block included) is the same in every
+        # scan of a sensor: compare its bytes with the previous scan's instead of parsing.
+        c.align(4)
+        start = c.pos
+        cached = _LAST_LAYOUT.get((encoding, order))
+        if cached is not None and buf[start : start + len(cached.block)] == cached.block:
+            wire = cached
+            c.pos = start + len(cached.block)
+        else:
+            height, width = c.u32(), c.u32()
+            fields = []
+            for _ in range(c.u32()):
+                name = c.string(nul=encoding == "cdr")
+                offset = c.u32()
+                datatype = c.u8()
+                fields.append(_PointField(name, offset, datatype, c.u32()))
+            is_bigendian = bool(c.u8())
+            point_step, row_step = c.u32(), c.u32()
+            if c.pos > len(buf):
+                raise IndexError("layout past the end")
+            block = bytes(buf[start : c.pos])
+            wire = _WireLayout(
+                f"{encoding}{order}".encode() + block,
+                block,
+                height,
+                width,
+                tuple(fields),
+                is_bigendian,
+                point_step,
+                row_step,
+            )
+            _LAST_LAYOUT[(encoding, order)] = wire
         blob = c.blob()
         is_dense = bool(c.u8()) if c.pos < len(buf) else False
     except (IndexError, struct.error) as err:
         raise DecodeError(f"truncated or corrupt PointCloud2 message ({err})", where) from err
     return PointCloud2Msg(
         header=_Header(_Stamp(sec, nanosec), frame),
-        height=height,
-        width=width,
-        fields=fields,
-        is_bigendian=is_bigendian,
-        point_step=point_step,
-        row_step=row_step,
+        height=wire.height,
+        width=wire.width,
+        fields=list(wire.fields),
+        is_bigendian=wire.is_bigendian,
+        point_step=wire.point_step,
+        row_step=wire.row_step,
         data=blob,
         is_dense=is_dense,
+        layout_key=wire.key,
     )

@@ -2,8 +2,9 @@
 
 A recorder that dies (power cut, full disk, kill -9) leaves a bag without its index; rosbags,
 like rosbag, then refuses it. The records before the damage are intact, so this reader walks
-them in file order (decompressing bz2/lz4 chunks), keeps a small in-memory index of where each
-message sits, and serves messages from it, like `rosbag reindex` would after the fact.
+them in file order (decompressing bz2/lz4 chunks, one at a time), keeps a small in-memory index
+of where each message sits, and serves messages from it, like `rosbag reindex` would after the
+fact. Memory is bounded by one chunk plus the index, whatever the size of the bag.
 """
 
 from __future__ import annotations
@@ -13,13 +14,14 @@ import struct
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from mfmap.errors import DecodeError, LogError
 from mfmap.ingest.backend import RawMessage, RawTopic, normalise_msgtype
 
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG_DATA, OP_BAG_HEADER, OP_INDEX_DATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 # A record claiming more than this is a damaged length field.
 MAX_RECORD_BYTES = 1 << 30
@@ -85,12 +87,26 @@ def _decompress(compression: str, data: bytes) -> bytes:
     raise ValueError(f"unknown chunk compression '{compression}'")
 
 
+def _read_record(f: BinaryIO, pos: int, end: int) -> tuple[dict[str, bytes], int, int]:
+    """(header fields, data offset, data length) of the top-level record at file offset `pos`."""
+    f.seek(pos)
+    head = f.read(4)
+    if len(head) < 4:
+        raise ValueError(f"record header length cut off at byte {pos}")
+    (hlen,) = struct.unpack("<I", head)
+    if hlen > MAX_RECORD_BYTES or pos + 4 + hlen + 4 > end:
+        raise ValueError(f"record header cut off at byte {pos}")
+    header = f.read(hlen)
+    (dlen,) = struct.unpack("<I", f.read(4))
+    dstart = pos + 8 + hlen
+    if dlen > MAX_RECORD_BYTES or dstart + dlen > end:
+        raise ValueError(f"record data cut off at byte {pos}")
+    return _fields(header), dstart, dlen
+
+
 def _scan(path: Path) -> _Scan:
+    """Walk the bag record by record; only one chunk is in memory at a time."""
     out = _Scan()
-    data = path.read_bytes() if path.stat().st_size < MAX_RECORD_BYTES else None
-    if data is None:
-        raise LogError("bag index is damaged and the bag is too large to recover in memory", path)
-    magic = b"#ROSBAG V2.0\n"
     order = 0
 
     def add_record(fields: dict[str, bytes], buf: bytes | memoryview, dstart: int, dlen: int, chunk_pos: int) -> None:
@@ -113,19 +129,28 @@ def _scan(path: Path) -> _Scan:
             out.messages.append((sec * 1_000_000_000 + nsec, order, conn, chunk_pos, dstart, dlen))
             order += 1
 
-    try:
-        for fields, dstart, dlen in _records(data, len(magic), len(data)):
-            op = fields.get("op", b"\x00")[0]
-            if op == OP_CHUNK:
-                compression = fields.get("compression", b"none").decode()
-                raw = _decompress(compression, data[dstart : dstart + dlen])
-                out.chunks[dstart] = (compression, dstart, dlen)
-                for inner, istart, ilen in _records(raw, 0, len(raw)):
-                    add_record(inner, raw, istart, ilen, dstart)
-            elif op in (OP_CONNECTION, OP_MSG_DATA):
-                add_record(fields, data, dstart, dlen, -1)
-    except Exception as err:  # the readable part of the bag ends at the first damage
-        out.damage = f"{err.__class__.__name__}: {err}"
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        pos = len(ROS1_MAGIC)
+        try:
+            while pos < size:
+                fields, dstart, dlen = _read_record(f, pos, size)
+                op = fields.get("op", b"\x00")[0]
+                if op == OP_CHUNK:
+                    compression = fields.get("compression", b"none").decode()
+                    f.seek(dstart)
+                    raw = _decompress(compression, f.read(dlen))
+                    out.chunks[dstart] = (compression, dstart, dlen)
+                    for inner, istart, ilen in _records(raw, 0, len(raw)):
+                        add_record(inner, raw, istart, ilen, dstart)
+                elif op == OP_CONNECTION:
+                    f.seek(dstart)
+                    add_record(fields, f.read(dlen), 0, dlen, -1)
+                elif op == OP_MSG_DATA:
+                    add_record(fields, b"", dstart, dlen, -1)
+                pos = dstart + dlen
+        except Exception as err:  # the readable part of the bag ends at the first damage
+            out.damage = f"{err.__class__.__name__}: {err}"
     return out
 
 

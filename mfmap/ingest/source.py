@@ -115,11 +115,18 @@ def _open_backend(path: Path) -> Backend:
             storage, files = _ros2_metadata(meta)
             if storage == "mcap" and files is not None:
                 return McapBackend([path / f for f in files], fmt="ros2")
-            return RosbagsBackend(path, "ros2")
+            return _open_ros2_bag(path)
         mcaps = sorted(p for p in path.glob("*.mcap") if p.is_file())
-        if not mcaps:
-            raise LogError("folder holds neither a ROS 2 metadata.yaml nor .mcap files", path)
-        return McapBackend(mcaps, fmt="mcap")
+        if mcaps:
+            return McapBackend(mcaps, fmt="mcap")
+        dbs = sorted(p for p in path.glob("*.db3") if p.is_file())
+        if dbs:
+            # rosbag2 writes metadata.yaml when it closes the bag: a recorder that died left
+            # only its database files.
+            from mfmap.ingest.sqlite_recover import Ros2SqliteRecoveryBackend
+
+            return Ros2SqliteRecoveryBackend(path, dbs, None, "no metadata.yaml: the recorder did not finish")
+        raise LogError("folder holds neither a ROS 2 metadata.yaml nor .mcap or .db3 files", path)
     if path.stat().st_size == 0:
         raise LogError("empty file (0 bytes), not a log", path)
     with path.open("rb") as f:
@@ -140,6 +147,27 @@ def _open_backend(path: Path) -> Backend:
         return _open_backend(path.parent)
     kind = {".mcap": "an MCAP file", ".bag": "a ROS 1 bag"}.get(path.suffix, "a known log format")
     raise LogError(f"not {kind} (unrecognised content at the start of the file)", path)
+
+
+def _open_ros2_bag(path: Path) -> Backend:
+    """A ROS 2 bag folder through rosbags; a damaged sqlite3 one row by row instead."""
+    from mfmap.ingest.bag_backend import RosbagsBackend, sqlite_files
+    from mfmap.ingest.sqlite_recover import Ros2SqliteRecoveryBackend, cut_short, metadata_count
+
+    dbs = sqlite_files(path)
+    if any(cut_short(db) for db in dbs):
+        # SQLite may open a file cut short and fail only on the first lost page, mid-read.
+        return Ros2SqliteRecoveryBackend(path, dbs, metadata_count(path), None)
+    try:
+        return RosbagsBackend(path, "ros2")
+    except LogError as err:
+        if err.__cause__ is None or not dbs:
+            raise
+        recovered = Ros2SqliteRecoveryBackend(path, dbs, metadata_count(path), str(err).split(": ", 1)[-1])
+        if not recovered.damaged:
+            recovered.close()  # the storage is intact: the problem is elsewhere
+            raise
+        return recovered
 
 
 def _ros2_metadata(meta: Path) -> tuple[str, list[str] | None]:

@@ -44,7 +44,7 @@ def test_text_file_named_mcap(tmp_path: Path) -> None:
 
 
 def test_folder_without_logs(tmp_path: Path) -> None:
-    with pytest.raises(LogError, match=r"neither a ROS 2 metadata\.yaml nor \.mcap files"):
+    with pytest.raises(LogError, match=r"neither a ROS 2 metadata\.yaml nor \.mcap or \.db3 files"):
         open_log(tmp_path)
 
 
