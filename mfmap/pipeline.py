@@ -286,6 +286,7 @@ def optimise(
         temperature_k=cfg.floors.temperature_k,
         gravity_body=gravity,
         progress=progress,
+        imu=imu,
     )
 
 

@@ -53,6 +53,14 @@ class GraphConfig(BaseModel):
         True, description="the floors stage's height change across each transition as a z factor"
     )
     transition_sigma_z_m: float = Field(0.03, description="noise of that height change (m)")
+    imu_ride_height: bool = Field(
+        True,
+        description="each elevator ride's height change from the IMU (vertical specific force "
+        "integrated twice, zero velocity at both ends) as its own z factor",
+    )
+    imu_ride_gate_m: float = Field(
+        0.25, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
+    )
     gravity_sigma_deg: float = Field(1.0, description="roll/pitch from gravity")
     prior_sigma: float = Field(1e-4, description="prior on the first keyframe (m, rad)")
     interfloor_voxel_m: float = Field(0.1, description="voxel for inter-floor registration")

@@ -7,6 +7,8 @@ order) drifting as a random walk. Factors, by kind:
 - barometer: gtsam.BarometricFactor per keyframe (z = height(pressure) - bias);
 - bias_walk: BetweenFactorDouble between consecutive biases (sigma grows with sqrt(dt));
 - elevator: x, y, yaw held across a ride, z free;
+- transition_z: the floors stage's (barometer's) height change across a ride or a stairway;
+- imu_ride: an elevator ride's height change from the IMU (mfmap.graph.ride), z only;
 - interfloor: global registration of adjacent floors, x, y, yaw only;
 - height_tie: consecutive keyframes of one floor share z (ground robots);
 - gravity: roll/pitch from the IMU's gravity (or level when there is no IMU);
@@ -30,8 +32,17 @@ from scipy.stats import chi2
 from mfmap.graph.barometer import pressure_at, pressure_to_height_m
 from mfmap.graph.config import BaroSource, GraphConfig, RobustKernel
 from mfmap.graph.interfloor import FloorMatch, register_floors
+from mfmap.graph.ride import ride_height
 from mfmap.progress import NullProgress, Progress
-from mfmap.types import F64, FloorSegmentation, Keyframe, PoseEdge, PressureSeries, TransitionKind
+from mfmap.types import (
+    F64,
+    FloorSegmentation,
+    ImuSeries,
+    Keyframe,
+    PoseEdge,
+    PressureSeries,
+    TransitionKind,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -89,6 +100,7 @@ class GraphResult:
     error_final: float
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    rides: list[dict[str, Any]] = field(default_factory=list)  # per transition: IMU vs barometer
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -113,6 +125,7 @@ class GraphResult:
                 for m in self.floor_matches
             ],
             "floor_z_m": {str(k): round(v, 4) for k, v in self.floor_z_m.items()},
+            "rides": [dict(r) for r in self.rides],
             "warnings": list(self.warnings),
         }
 
@@ -258,12 +271,14 @@ def optimize_building(
     temperature_k: float = 288.15,
     gravity_body: dict[int, F64] | None = None,
     progress: Progress | None = None,
+    imu: ImuSeries | None = None,
 ) -> GraphResult:
     """Build the building's factor graph from the mapping stage's keyframes and edges; optimise.
 
     `gravity_body` maps a keyframe id to the measured up direction (specific force) in the base
-    frame; keyframes without one are assumed level. Returns optimised poses; keyframes are not
-    modified.
+    frame; keyframes without one are assumed level. `imu` gives each elevator ride's height change
+    (config `imu_ride_height`); without it z across a ride comes from the barometer alone.
+    Returns optimised poses; keyframes are not modified.
     """
     started = time.perf_counter()
     progress = progress or NullProgress()
@@ -310,7 +325,7 @@ def optimize_building(
         _add_barometer(
             builder, values, kfs, initial_poses, pressure, segmentation, config, temperature_k, warnings
         )
-        _add_elevator(builder, kfs, initial_poses, segmentation, config)
+        rides = _add_elevator(builder, kfs, initial_poses, segmentation, config, imu)
         if config.same_floor_height_tie:
             _add_height_ties(builder, values, kfs, initial_poses)
         if config.gravity_factors:
@@ -363,6 +378,10 @@ def optimize_building(
             stats.outliers += 1
 
     poses = {i: np.asarray(result.atPose3(X(i)).matrix(), dtype=np.float64) for i in ids}
+    for ride in rides:
+        if "keyframes" in ride:
+            a, b = ride["keyframes"]
+            ride["graph_height_change_m"] = round(float(poses[b][2, 3] - poses[a][2, 3]), 4)
     bias = {k: float(result.atDouble(B(k))) for k in range(len(kfs)) if result.exists(B(k))}
     return GraphResult(
         poses=poses,
@@ -376,6 +395,7 @@ def optimize_building(
         error_final=float(builder.graph.error(result)),
         seconds=time.perf_counter() - started,
         warnings=warnings,
+        rides=rides,
     )
 
 
@@ -440,21 +460,39 @@ def _add_elevator(
     initial: dict[int, F64],
     seg: FloorSegmentation | None,
     config: GraphConfig,
-) -> None:
-    """Per transition: the floors stage's height change (z only) and, for elevator rides,
-    x, y and yaw held (z free). Two factors, so an x, y, yaw disagreement that the robust kernel
-    turns down does not also turn down the height."""
+    imu: ImuSeries | None = None,
+) -> list[dict[str, Any]]:
+    """Per transition: the floors stage's height change (z only), for elevator rides the IMU's
+    height change (z only) and x, y and yaw held (z free). Separate factors, so an x, y, yaw
+    disagreement that the robust kernel turns down does not also turn down the height.
+    Returns one report entry per transition (IMU vs barometer height change)."""
+    rides: list[dict[str, Any]] = []
     if seg is None:
-        return
+        return rides
     yaw = math.radians(config.elevator_sigma_yaw_deg)
     sig_xy = config.elevator_sigma_xy_m
     tilt = math.radians(config.gravity_sigma_deg) * 5.0
     for tr in seg.transitions:
         ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
+        entry: dict[str, Any] = {
+            "kind": tr.kind.value,
+            "from_floor": tr.from_floor,
+            "to_floor": tr.to_floor,
+            "start_s": round(tr.start_ns / 1e9, 3),
+            "end_s": round(tr.end_ns / 1e9, 3),
+            "baro_height_change_m": round(tr.height_change_m, 4),
+        }
+        rides.append(entry)
         if ends is None:
+            entry["imu"] = "no keyframe before or after the transition"
             continue
         a, b = ends
+        entry["keyframes"] = [a.id, b.id]
         measured = _relative_level(initial[a.id], initial[b.id], tr.height_change_m)
+        if tr.kind == TransitionKind.ELEVATOR and config.imu_ride_height:
+            _add_imu_ride(builder, a, b, initial, tr.start_ns, tr.end_ns, tr.height_change_m, imu, config, entry)
+        else:
+            entry["imu"] = "off" if tr.kind == TransitionKind.ELEVATOR else "not an elevator ride"
         if config.transition_height:
             builder.between(
                 "transition_z", a.id, b.id, measured,
@@ -473,6 +511,44 @@ def _add_elevator(
                 "elevator", a.id, b.id, measured, [tilt, tilt, yaw, sig_xy, sig_xy, FREE_SIGMA],
                 kernel=RobustKernel.CAUCHY,
             )
+    return rides
+
+
+def _add_imu_ride(
+    builder: _Builder,
+    a: Keyframe,
+    b: Keyframe,
+    initial: dict[int, F64],
+    start_ns: int,
+    end_ns: int,
+    baro_dz_m: float,
+    imu: ImuSeries | None,
+    config: GraphConfig,
+    entry: dict[str, Any],
+) -> None:
+    """The IMU's height change across one ride as a z-only factor between the ride's keyframes.
+
+    Gated against the barometer's height change (a wrong IMU bias or a missed stand-still gives
+    decimetres, not centimetres) and robust, so a bad IMU does not win.
+    """
+    ride = ride_height(imu, start_ns, end_ns)
+    entry["imu"] = ride.reason
+    if ride.height_change_m is None:
+        return
+    entry["imu_height_change_m"] = round(ride.height_change_m, 4)
+    entry["imu_sigma_m"] = round(ride.sigma_m, 4)
+    entry["imu_window_s"] = round((ride.end_ns - ride.start_ns) / 1e9, 3)
+    entry["imu_bias_m_s2"] = round(ride.bias_m_s2, 4)
+    if abs(ride.height_change_m - baro_dz_m) > config.imu_ride_gate_m:
+        entry["imu"] = f"rejected: differs from the barometer by more than {config.imu_ride_gate_m} m"
+        builder.reject("imu_ride")
+        return
+    measured = _relative_level(initial[a.id], initial[b.id], ride.height_change_m)
+    builder.between(
+        "imu_ride", a.id, b.id, measured,
+        [FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA, ride.sigma_m],
+        links=False,
+    )
 
 
 def _add_height_ties(

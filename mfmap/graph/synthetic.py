@@ -20,6 +20,7 @@ from mfmap.types import (
     F64,
     Floor,
     FloorSegmentation,
+    ImuSeries,
     Keyframe,
     PoseEdge,
     PressureSeries,
@@ -263,4 +264,52 @@ def make_building(
         walls={f: walls_of_floor(f) for f in floor_ids},
         floor_height_m=floor_height_m,
         wall_height_m=wall_height_m,
+    )
+
+
+def ride_imu(
+    rides: list[tuple[int, int, float]],
+    seed: int = 0,
+    accel_bias_m_s2: tuple[float, float, float] = (0.05, -0.03, 0.05),
+    noise_m_s2: float = 0.03,
+    tilt_deg: float = 2.0,
+    cabin_acc_m_s2: float = 0.5,
+    cabin_speed_m_s: float = 1.0,
+    margin_s: float = 6.0,
+) -> ImuSeries:
+    """A 200 Hz IMU standing still in a cabin around each ride (start_ns, end_ns, height change).
+
+    The cabin's trapezoidal move is centred in [start_ns, end_ns]; the IMU is mounted tilted by
+    `tilt_deg` (so up is not its z) with a constant accelerometer bias and white noise. Samples
+    cover each ride +- margin_s only.
+    """
+    rng = np.random.default_rng([seed, 29])
+    tilt = math.radians(tilt_deg)
+    # World -> IMU: a tilt about the IMU's x axis.
+    rot = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(tilt), math.sin(tilt)], [0.0, -math.sin(tilt), math.cos(tilt)]])
+    dt_s = 1.0 / 200.0
+    stamps: list[np.ndarray] = []
+    accel: list[np.ndarray] = []
+    for start_ns, end_ns, dz_m in rides:
+        t = np.arange(-margin_s, (end_ns - start_ns) / 1e9 + margin_s, dt_s)
+        acc_s = min(cabin_speed_m_s / cabin_acc_m_s2, math.sqrt(abs(dz_m) / cabin_acc_m_s2))
+        cruise_s = max(abs(dz_m) / (cabin_acc_m_s2 * max(acc_s, 1e-9)) - acc_s, 0.0)
+        move_s = 2 * acc_s + cruise_s
+        t_move = (end_ns - start_ns) / 1e9 / 2 - move_s / 2
+        tau = t - t_move
+        a_up = np.where((tau >= 0) & (tau < acc_s), cabin_acc_m_s2, 0.0)
+        a_up = a_up - np.where((tau >= acc_s + cruise_s) & (tau < move_s), cabin_acc_m_s2, 0.0)
+        a_up *= math.copysign(1.0, dz_m)
+        f_world = np.zeros((len(t), 3))
+        f_world[:, 2] = GRAVITY_M_S2 + a_up
+        f_imu = f_world @ rot.T + np.asarray(accel_bias_m_s2) + rng.normal(0.0, noise_m_s2, (len(t), 3))
+        stamps.append(start_ns + (t * 1e9).astype(np.int64))
+        accel.append(f_imu)
+    n = sum(len(s) for s in stamps)
+    return ImuSeries(
+        np.concatenate(stamps),
+        rng.normal(0.0, 0.003, (n, 3)),
+        np.concatenate(accel),
+        np.full((n, 4), np.nan),
+        "imu",
     )

@@ -1,0 +1,133 @@
+"""An elevator ride's height change from the IMU (mfmap/graph/ride.py), alone and in the graph."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mfmap.config import MfmapConfig
+from mfmap.graph.config import GraphConfig
+from mfmap.graph.optimize import optimize_building
+from mfmap.graph.ride import ride_height
+from mfmap.graph.synthetic import START_NS, make_building, ride_imu
+from mfmap.ingest import open_log
+from mfmap.pipeline import segment_floors
+from mfmap.types import ImuSeries, PressureSeries
+
+RIDE_NS = (START_NS, START_NS + 15 * 10**9)
+
+
+def test_tiny_scenario_ride_within_2cm_of_truth(sim_run: Any) -> None:
+    """The simulator's IMU (200 Hz, 0.03 m/s^2 noise, ~0.03 m/s^2 bias) across tiny's ride."""
+    folder = Path(sim_run("tiny", "mcap", 0))
+    truth = json.loads((folder / "gt_floors.json").read_text())["transitions"]
+    cfg = MfmapConfig()
+    with open_log(folder / "log.mcap", cfg.ingest) as src:
+        _, seg = segment_floors(src, cfg, [])
+        imu = src.imu()
+    assert len(seg.transitions) == len(truth) == 1
+    tr = seg.transitions[0]
+    ride = ride_height(imu, tr.start_ns, tr.end_ns)
+    assert ride.reason == "ok"
+    assert ride.height_change_m is not None
+    assert abs(ride.height_change_m - truth[0]["height_change_m"]) < 0.02
+    assert 0.005 < ride.sigma_m < 0.03
+    # The integration window hugs the ride (3.5 m at 1 m/s, 0.5 m/s^2: 5.5 s) plus its pads.
+    assert 5.5 < (ride.end_ns - ride.start_ns) / 1e9 < 7.5
+
+
+@pytest.mark.parametrize("dz_m", [4.0, -8.0])
+def test_biased_tilted_imu(dz_m: float) -> None:
+    """0.05 m/s^2 bias on a 2-degree tilted IMU: the stand-still and zero-velocity ends remove it."""
+    imu = ride_imu([(*RIDE_NS, dz_m)], seed=1, accel_bias_m_s2=(0.05, 0.05, 0.05), tilt_deg=2.0)
+    ride = ride_height(imu, *RIDE_NS)
+    assert ride.reason == "ok"
+    assert ride.height_change_m is not None
+    assert abs(ride.height_change_m - dz_m) < 0.02
+    # Bias along up: 0.05 (z) + 0.05 sin(2 deg) (y) ~ 0.052, plus gravity's 9.80665 removed.
+    assert ride.bias_m_s2 == pytest.approx(0.05 * math.cos(math.radians(2)) + 0.05 * math.sin(math.radians(2)), abs=0.005)
+    # Without the zero-velocity update the same bias would give 0.5 * 0.05 * T^2 ~ 1.3 m.
+
+
+def test_sigma_matches_the_spread_over_seeds() -> None:
+    errors = []
+    sigma = 0.0
+    for seed in range(12):
+        imu = ride_imu([(*RIDE_NS, 4.0)], seed=seed)
+        ride = ride_height(imu, *RIDE_NS)
+        assert ride.height_change_m is not None
+        errors.append(ride.height_change_m - 4.0)
+        sigma = ride.sigma_m
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    assert 0.5 * sigma < rms < 2.0 * sigma
+    assert abs(float(np.mean(errors))) < 0.015
+
+
+def test_skipped_without_imu_or_stand_still() -> None:
+    assert ride_height(None, *RIDE_NS).reason == "no IMU"
+    imu = ride_imu([(*RIDE_NS, 4.0)], seed=2)
+    # The robot turns on the spot right after the cabin stops: no stand-still to trust.
+    t_s = (imu.stamp_ns - RIDE_NS[0]) / 1e9
+    gyro = imu.gyro_rad_s.copy()
+    gyro[(t_s > 11.2) & (t_s < 14.0), 2] = 0.5
+    turning = dataclasses.replace(imu, gyro_rad_s=gyro)
+    ride = ride_height(turning, *RIDE_NS)
+    assert ride.height_change_m is None
+    assert ride.reason == "robot not standing still after the ride"
+    # A driver that removes gravity: nothing to take up from.
+    linear = dataclasses.replace(imu, accel_m_s2=imu.accel_m_s2 - imu.accel_m_s2.mean(axis=0))
+    assert ride_height(linear, *RIDE_NS).reason.startswith("IMU reads 0.")
+    # An IMU that saw no ride at all (the barometer's transition was a pressure step).
+    still = ride_imu([(*RIDE_NS, 0.0)], seed=2)
+    assert ride_height(still, *RIDE_NS).reason == "no vertical acceleration found"
+
+
+def _baro_step(pressure: PressureSeries, after_ns: int, step_pa: float) -> PressureSeries:
+    p = pressure.pressure_pa + np.where(pressure.stamp_ns > after_ns, step_pa, 0.0)
+    return PressureSeries(pressure.stamp_ns, p, pressure.frame_id)
+
+
+def test_graph_takes_the_ride_height_from_the_imu() -> None:
+    """A 1 Pa pressure step at the ride (~ -8.5 cm) moves the upper floor; the IMU puts it back."""
+    floor_height_m = 4.0
+    b = make_building((0, 1), seed=4, floor_height_m=floor_height_m, baro_noise_pa=0.5)
+    tr = b.segmentation.transitions[0]
+    pressure = _baro_step(b.pressure, tr.start_ns, 1.0)
+    seg = dataclasses.replace(
+        b.segmentation, transitions=(dataclasses.replace(tr, height_change_m=floor_height_m - 0.085),)
+    )
+    imu = ride_imu([(tr.start_ns, tr.end_ns, floor_height_m)], seed=5)
+
+    def z_error(config: GraphConfig, imu_series: ImuSeries | None) -> tuple[float, Any]:
+        res = optimize_building(b.keyframes, b.edges, seg, pressure, config, temperature_k=295.0, imu=imu_series)
+        return res.floor_z_m[1] - res.floor_z_m[0] - floor_height_m, res
+
+    err_off, off = z_error(GraphConfig(imu_ride_height=False), imu)
+    err_on, on = z_error(GraphConfig(), imu)
+    err_none, none = z_error(GraphConfig(), None)
+    assert err_off < -0.05  # the barometer's error
+    assert abs(err_on) < 0.02
+    assert err_none == pytest.approx(err_off, abs=1e-6)  # no IMU: today's behaviour
+    assert on.stats["imu_ride"].count == 1 and "imu_ride" not in off.stats
+    ride = on.to_json()["rides"][0]
+    assert ride["imu"] == "ok"
+    assert ride["baro_height_change_m"] == pytest.approx(floor_height_m - 0.085, abs=1e-4)
+    assert abs(ride["imu_height_change_m"] - floor_height_m) < 0.02
+    assert abs(ride["graph_height_change_m"] - floor_height_m) < 0.02
+    assert off.to_json()["rides"][0]["imu"] == "off"
+    assert none.to_json()["rides"][0]["imu"] == "no IMU"
+
+    # A broken IMU (half a metre off: a bias that changed mid-ride) is gated out.
+    acc = imu.accel_m_s2.copy()
+    t_s = (imu.stamp_ns - tr.start_ns) / 1e9
+    acc[(t_s > 7.0) & (t_s < 7.5), 2] += 4.0
+    err_bad, bad = z_error(GraphConfig(), dataclasses.replace(imu, accel_m_s2=acc))
+    assert bad.stats["imu_ride"].rejected == 1 and bad.stats["imu_ride"].count == 0
+    assert bad.to_json()["rides"][0]["imu"].startswith("rejected")
+    assert err_bad == pytest.approx(err_off, abs=1e-6)
