@@ -194,6 +194,18 @@ def segment_floors(
     try:
         pressure = src.pressure()
     except MissingDataError:
+        from mfmap.graph.ride import find_rides
+
+        # Inside a closed cabin the lidar cannot see a ride; the accelerometer can.
+        rides = find_rides(src.imu(), cfg.floors.min_floor_height_m)
+        if rides:
+            ride = rides[0]
+            raise MissingDataError(
+                f"no barometer in the log, but the IMU feels {len(rides)} elevator ride(s), the first "
+                f"{ride.height_change_m:+.1f} m at {(ride.start_ns - src.start_ns) / 1e9:.0f} s: the "
+                "robot changed floors, and a multi-floor map needs the barometer (topic role 'baro')",
+                src.path,
+            ) from None
         warnings.append("no barometer in the log: building a single-floor map")
         return None, single_floor(src.start_ns, src.end_ns)
     odom = src.odometry()

@@ -139,3 +139,42 @@ def ride_height(
     z = float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(tr)))
     sigma = math.hypot(noise * math.sqrt(dt_s) * dur_s**1.5 / math.sqrt(12.0), SIGMA_FLOOR_M)
     return RideHeight(t0, t1, z, sigma, "ok", bias_m_s2=g_still - 9.80665)
+
+
+# Accelerating, cruising and braking of one ride: bursts of vertical acceleration closer than
+# this belong to the same ride (a cabin cruises at ~1 m/s, so a few floors take ~10-20 s).
+RIDE_GAP_S = 30.0
+
+
+def find_rides(imu: ImuSeries | None, min_height_m: float) -> list[RideHeight]:
+    """Elevator rides the IMU feels without being told where to look (a log with no barometer).
+
+    Bursts of vertical acceleration are grouped into candidate rides and each is measured with
+    `ride_height`; those that stand still at both ends and change height by at least
+    `min_height_m` are returned. Driving over bumps makes short bursts, but no stand-still to
+    stand-still height change of metres.
+    """
+    if imu is None or len(imu) < 50:
+        return []
+    t = imu.stamp_ns
+    acc = np.asarray(imu.accel_m_s2, dtype=np.float64)
+    dt_s = float(np.median(np.diff(t))) / 1e9
+    if not dt_s > 0:
+        return []
+    up = np.median(acc, axis=0)
+    norm = float(np.linalg.norm(up))
+    if norm < 1.0:
+        return []
+    smooth = _moving_mean(acc @ (up / norm), max(1, round(SMOOTH_S / dt_s)))
+    moving = np.flatnonzero(np.abs(smooth - float(np.median(smooth))) > MOTION_THRESHOLD_M_S2)
+    if len(moving) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(t[moving]) > int(RIDE_GAP_S * 1e9))
+    firsts = np.concatenate([[0], breaks + 1])
+    lasts = np.concatenate([breaks, [len(moving) - 1]])
+    rides = []
+    for a, b in zip(firsts, lasts, strict=True):
+        ride = ride_height(imu, int(t[moving[a]]), int(t[moving[b]]), search_s=0.5)
+        if ride.height_change_m is not None and abs(ride.height_change_m) >= min_height_m:
+            rides.append(ride)
+    return rides

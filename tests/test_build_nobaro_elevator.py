@@ -1,0 +1,42 @@
+"""A log without barometer in which the robot rides an elevator must not become a one-floor map."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from mfmap import pipeline
+from mfmap.config import MfmapConfig
+from mfmap.errors import MissingDataError
+from mfmap.graph.ride import find_rides
+from mfmap.ingest import open_log
+from tests.logcopy import copy_log
+
+
+def test_elevator_ride_without_barometer_fails_clearly(sim_run: Callable[..., Path], tmp_path: Path) -> None:
+    tiny = sim_run("tiny")
+    log = tmp_path / "nobaro.mcap"
+    copy_log(tiny / "log.mcap", log, {"/baro/pressure"})
+    out = tmp_path / "out"
+    with pytest.raises(MissingDataError, match=r"no barometer .* IMU feels 1 elevator ride\(s\), the first \+3\.5 m"):
+        pipeline.build(log, out, MfmapConfig())
+    assert not out.exists()
+
+
+def test_find_rides_measures_each_ride(sim_run: Callable[..., Path]) -> None:
+    run = sim_run("tiny")
+    truth = json.loads((run / "gt_floors.json").read_text())["transitions"]
+    with open_log(run / "log.mcap") as src:
+        imu = src.imu()
+    rides = find_rides(imu, 2.0)
+    assert len(rides) == len(truth) == 1
+    (ride,), (tr,) = rides, truth
+    assert ride.height_change_m == pytest.approx(tr["height_change_m"], abs=0.02)
+    # The detected window lies within the ride's stand-stills, around the true ride.
+    assert tr["t_start"] - 3.0 < ride.start_ns / 1e9 < tr["t_end"]
+    assert tr["t_start"] < ride.end_ns / 1e9 < tr["t_end"] + 3.0
+    # Below the floor height nothing counts as a ride.
+    assert find_rides(imu, 4.0) == []
