@@ -23,7 +23,7 @@ import numpy as np
 
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.errors import MissingDataError, OutputError
-from mfmap.progress import NullProgress, Progress
+from mfmap.progress import NullProgress, Progress, StageProgress
 from mfmap.types import (
     F64,
     Extrinsics,
@@ -323,34 +323,144 @@ def accumulate(
         for kf in sorted(mapping.keyframes, key=lambda k: k.stamp_ns):
             maps.add(kf.floor_id, graph.poses[kf.id], kf.cloud, force_view=True)
         return trajectory, maps
-    index = {int(s): i for i, s in enumerate(trajectory.stamps_ns)}
     cabins = _cabins(seg, trajectory, cfg)
-    shafts = _distinct_cabins(cabins)
+    used = _used_scans(seg, trajectory, cabins, cfg)
+    job = _MapsJob(src.path, cfg, Role.LIDAR not in src.roles, trajectory, used,
+                   _distinct_cabins(cabins), extrinsics, dict(graph.floor_z_m))
+    groups = _floor_groups(used, trajectory, cfg.export.workers)
+    with progress.stage("maps", total=len(used)) as bar:
+        if len(groups) < 2:
+            return trajectory, _accumulate_scans(src, job, bar)
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # One floor group per process (a floor's cloud and grid never depend on another floor,
+        # so the maps are those of one pass). This process takes the first group itself.
+        # spawn: the parent holds open3d's and GTSAM's thread pools, which fork does not copy.
+        cpus = _other_cpus(len(groups) - 1)
+        with ProcessPoolExecutor(len(groups) - 1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = [pool.submit(_maps_worker, job.for_floors(g), cpu) for g, cpu in zip(groups[1:], cpus, strict=True)]
+            maps = _accumulate_scans(src, job.for_floors(groups[0]), bar)
+            for future in futures:
+                part = future.result()
+                bar.advance(part.scans)
+                maps.merge(part)
+    return trajectory, maps
+
+
+@dataclass(frozen=True)
+class _MapsJob:
+    """What the second pass over the log needs (sent to a worker process for a floor group)."""
+
+    path: Path  # the log, re-opened by a worker
+    cfg: MfmapConfig
+    planar: bool
+    trajectory: Trajectory
+    used: dict[int, int]  # stamp -> trajectory index of the scans to use
+    shafts: list[_Cabin]
+    extrinsics: Extrinsics
+    floor_z_m: dict[int, float]
+
+    def for_floors(self, floors: set[int]) -> _MapsJob:
+        floor = self.trajectory.floor
+        used = {s: i for s, i in self.used.items() if int(floor[i]) in floors}
+        return _MapsJob(self.path, self.cfg, self.planar, self.trajectory, used, self.shafts,
+                        self.extrinsics, self.floor_z_m)
+
+
+def _accumulate_scans(src: LogSource, job: _MapsJob, bar: StageProgress) -> MapAccumulator:
+    """Deskew, clean and add the planned scans to a fresh accumulator."""
+    from mfmap.export.mapdata import MapAccumulator
+
+    maps = MapAccumulator(job.cfg.export, job.floor_z_m)
+    trajectory, todo, deskew = job.trajectory, dict(job.used), job.cfg.export.deskew
+    for stamp_ns, frame_id, xyz, t_offset_ns in _scans_of(src, job.planar, trajectory, job.used):
+        i = todo.pop(stamp_ns, None)
+        if i is None:
+            continue  # a scan the plan leaves out (or a second copy of one)
+        bar.advance()
+        pose = trajectory.poses[i]
+        to_base = job.extrinsics.get(frame_id)
+        pts = xyz.astype(np.float64)
+        if to_base is not None:
+            pts = pts @ to_base[:3, :3].T + to_base[:3, 3]
+        if deskew and t_offset_ns is not None and len(t_offset_ns) == len(pts):
+            pts = _deskew(pts, t_offset_ns, trajectory, i)
+        pts = _drop_cabin(pts, pose, stamp_ns, job.shafts)
+        maps.add(int(trajectory.floor[i]), pose, pts)
+    return maps
+
+
+def _maps_worker(job: _MapsJob, cpu: int | None) -> MapAccumulator:
+    import contextlib
+
+    from mfmap.ingest import open_log
+
+    if cpu is not None and hasattr(os, "sched_setaffinity"):
+        with contextlib.suppress(OSError):  # a CPU we may not use: stay where the parent was
+            os.sched_setaffinity(0, {cpu})
+    with open_log(job.path, job.cfg.ingest) as src, NullProgress().stage("maps") as bar:
+        return _accumulate_scans(src, job, bar)
+
+
+def _floor_groups(used: dict[int, int], trajectory: Trajectory, workers: int) -> list[set[int]]:
+    """Floors in at most `workers` groups of about equal scan counts (largest first, greedy)."""
+    counts: dict[int, int] = {}
+    for i in used.values():
+        counts[int(trajectory.floor[i])] = counts.get(int(trajectory.floor[i]), 0) + 1
+    groups: list[tuple[int, set[int]]] = [(0, set()) for _ in range(min(workers, len(counts)))]
+    for floor_id, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])):
+        k = min(range(len(groups)), key=lambda j: (groups[j][0], j))
+        groups[k] = (groups[k][0] + n, groups[k][1] | {floor_id})
+    return [g for _, g in sorted(groups, key=lambda ng: (-ng[0], min(ng[1], default=0))) if g]
+
+
+def _other_cpus(n: int) -> list[int | None]:
+    """CPUs for n worker processes when the build is pinned to one CPU (`--threads 1`)."""
+    if not hasattr(os, "sched_getaffinity"):
+        return [None] * n
+    current = sorted(os.sched_getaffinity(0))
+    total = os.cpu_count() or 1
+    if len(current) != 1 or total < 2:
+        return [None] * n
+    return [(current[0] + k + 1) % total for k in range(n)]
+
+
+def _used_scans(seg: FloorSegmentation, trajectory: Trajectory, cabins: list[_Cabin],
+                cfg: MfmapConfig) -> dict[int, int]:
+    """Stamp -> trajectory index of the scans the maps use, decided from the poses alone.
+
+    Left out: scans in (or at the ends of) a ride or stair walk, scans before the robot moved
+    or turned enough since the last one used on its floor (standing still adds nothing), and
+    scans from inside an elevator cabin (its walls, and mirror ghosts behind them). Deciding
+    before reading lets the second pass decode only the scans it uses.
+    """
     margin = int(cfg.export.transition_margin_s * 1e9)
     rides = [(tr.start_ns - margin, tr.end_ns + margin) for tr in seg.transitions]
-    planar = Role.LIDAR not in src.roles
-    total = src.count(Role.SCAN2D if planar else Role.LIDAR)
     last_used: dict[int, F64] = {}
-    with progress.stage("maps", total=total) as bar:
-        for stamp_ns, frame_id, xyz in _scans(src, planar):
-            bar.advance()
-            i = index.get(stamp_ns)
-            if i is None or seg.floor_at(stamp_ns) < 0 or _near_transition(stamp_ns, rides):
-                continue  # not posed by mapping, or in (or at the ends of) a ride/stair walk
-            to_base = extrinsics.get(frame_id)
-            pts = xyz.astype(np.float64)
-            if to_base is not None:
-                pts = pts @ to_base[:3, :3].T + to_base[:3, 3]
-            pose = trajectory.poses[i]
-            floor_id = int(trajectory.floor[i])
-            if not _moved(last_used.get(floor_id), pose, cfg):
-                continue
-            if _in_cabin(pose, stamp_ns, cabins):
-                continue  # from inside the cabin: its walls, and mirror ghosts behind them
-            pts = _drop_cabin(pts, pose, stamp_ns, shafts)
-            maps.add(floor_id, pose, pts)
-            last_used[floor_id] = pose
-    return trajectory, maps
+    used: dict[int, int] = {}
+    for i, stamp in enumerate(trajectory.stamps_ns.tolist()):
+        if stamp in used or seg.floor_at(stamp) < 0 or _near_transition(stamp, rides):
+            continue
+        pose = trajectory.poses[i]
+        floor_id = int(trajectory.floor[i])
+        if not _moved(last_used.get(floor_id), pose, cfg) or _in_cabin(pose, stamp, cabins):
+            continue
+        used[stamp] = i
+        last_used[floor_id] = pose
+    return used
+
+
+def _scans_of(src: LogSource, planar: bool, trajectory: Trajectory, used: dict[int, int],
+              max_skip: int = 20) -> Iterator[tuple[int, str, np.ndarray, np.ndarray | None]]:
+    """The log's scans in windows around the used ones (runs of skipped scans are not decoded)."""
+    idx = sorted(used.values())
+    stamps = trajectory.stamps_ns
+    start = 0
+    for k in range(1, len(idx) + 1):
+        if k == len(idx) or idx[k] - idx[k - 1] > max_skip:
+            yield from _scans(src, planar, int(stamps[idx[start]]), int(stamps[idx[k - 1]]))
+            start = k
 
 
 def _moved(last: F64 | None, pose: F64, cfg: MfmapConfig) -> bool:
@@ -368,14 +478,73 @@ def _near_transition(stamp_ns: int, spans: list[tuple[int, int]]) -> bool:
     return any(lo <= stamp_ns <= hi for lo, hi in spans)
 
 
-def _scans(src: LogSource, planar: bool) -> Iterator[tuple[int, str, np.ndarray]]:
+def _scans(src: LogSource, planar: bool, start_ns: int | None = None,
+           end_ns: int | None = None) -> Iterator[tuple[int, str, np.ndarray, np.ndarray | None]]:
     if planar:
-        for scan in src.scans2d():
+        for scan in src.scans2d(start_ns, end_ns):
             xyz = np.column_stack([scan.xy, np.zeros(len(scan.xy), dtype=np.float32)])
-            yield scan.stamp_ns, scan.frame_id, xyz
+            yield scan.stamp_ns, scan.frame_id, xyz, scan.t_offset_ns
     else:
-        for cloud in src.clouds():
-            yield cloud.stamp_ns, cloud.frame_id, cloud.xyz
+        for cloud in src.clouds(start_ns, end_ns):
+            yield cloud.stamp_ns, cloud.frame_id, cloud.xyz, cloud.t_offset_ns
+
+
+def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i: int,
+            max_gap_ns: int = 250_000_000) -> F64:
+    """Points measured at stamp + t_offset, expressed in the base frame at the scan's stamp.
+
+    A spinning lidar fires each column at its own time, while the scan's pose is the base at the
+    stamp (mapping deskews at mid-sweep and moves the pose back to the stamp). The motion over
+    the sweep comes from the optimised trajectory: the relative pose to the next scan (or from
+    the previous one, at a gap), interpolated per point with a slerp of the rotation (Rodrigues,
+    vectorised) and a linear translation.
+    """
+    stamps, poses, floor = trajectory.stamps_ns, trajectory.poses, trajectory.floor
+    n = stamps.shape[0]
+    if n < 2 or points_base.shape[0] == 0 or not np.any(t_offset_ns):
+        return points_base
+    if i + 1 < n and stamps[i + 1] - stamps[i] <= max_gap_ns and floor[i + 1] == floor[i]:
+        a, b = i, i + 1
+    elif i > 0 and stamps[i] - stamps[i - 1] <= max_gap_ns and floor[i - 1] == floor[i]:
+        a, b = i - 1, i
+    else:
+        return points_base  # an isolated scan: no motion to interpolate
+    rel = _inverse_pose(poses[a]) @ poses[b]
+    span_ns = float(stamps[b] - stamps[a])  # at a gap after i, the motion into i carries on
+    frac = t_offset_ns.astype(np.float64) / span_ns
+    rotvec = _rotvec(rel[:3, :3])
+    angle = float(np.linalg.norm(rotvec))
+    out = points_base + frac[:, None] * rel[:3, 3]
+    if angle > 1e-12:
+        kx, ky, kz = rotvec / angle
+        skew = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+        theta = frac * angle
+        if angle < 0.5:  # sin and 1 - cos by their series (error < 1e-8 here): cheaper
+            t2 = theta * theta
+            sin = theta * (1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)))
+            one_minus_cos = 0.5 * t2 * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)))
+        else:
+            sin, one_minus_cos = np.sin(theta), 1.0 - np.cos(theta)
+        out += sin[:, None] * (points_base @ skew.T) + one_minus_cos[:, None] * (points_base @ (skew @ skew).T)
+    return out
+
+
+def _inverse_pose(pose: F64) -> F64:
+    out = np.eye(4)
+    out[:3, :3] = pose[:3, :3].T
+    out[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+    return out
+
+
+def _rotvec(rot: F64) -> F64:
+    """Axis * angle of a rotation matrix (angles well below pi: consecutive scans)."""
+    cos = float(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))
+    angle = math.acos(cos)
+    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+    sin = math.sin(angle)
+    if sin < 1e-9:
+        return 0.5 * axis  # small angle: the skew part is the rotation vector
+    return axis * (angle / (2.0 * sin))
 
 
 @dataclass(frozen=True)
@@ -433,12 +602,18 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
     if not cabins or points_base.shape[0] == 0:
         return points_base
     keep = np.ones(points_base.shape[0], dtype=bool)
+    range2 = np.einsum("ij,ij->i", points_base[:, :2], points_base[:, :2])
     for cabin in cabins:
         box_in_base = np.linalg.inv(pose) @ cabin.pose
         rot, origin = box_in_base[:3, :3], box_in_base[:3, 3]
-        local = (points_base[:, :2] - origin[:2]) @ rot[:2, :2]
         sensor = (-origin[:2]) @ rot[:2, :2]  # the base origin in the box frame
         half = np.array(cabin.half_xy_m)
+        # Only points at least as far as the box (from the base origin) can be in it or behind it.
+        gap = float(np.linalg.norm(np.maximum(np.abs(sensor) - half, 0.0)))
+        near = np.flatnonzero(range2 >= (gap - 1e-6) ** 2) if gap > 0 else np.arange(len(range2))
+        if near.shape[0] == 0:
+            continue
+        local = (points_base[near, :2] - origin[:2]) @ rot[:2, :2]
         d = local - sensor
         with np.errstate(divide="ignore", invalid="ignore"):
             t1 = (-half - sensor) / d
@@ -448,7 +623,7 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
         t_far = np.fmin(np.fmax(t1[:, 0], t2[:, 0]), np.fmax(t1[:, 1], t2[:, 1]))
         crosses = (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
         inside = np.all(np.abs(local) < half, axis=1)
-        keep &= ~(inside | (crosses & (t_far < 1.0)))
+        keep[near[inside | (crosses & (t_far < 1.0))]] = False
     return points_base[keep]
 
 

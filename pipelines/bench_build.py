@@ -6,7 +6,9 @@
 
 Speed: `mfmap build` runs as a child process; wall time and the child's peak RSS
 (getrusage(RUSAGE_CHILDREN).ru_maxrss) are the whole process's. Accuracy: `mfmap eval` metrics
-against the simulator's ground truth (checkpoint RMSE per floor, inter-floor x/y/yaw/z errors).
+against the simulator's ground truth (checkpoint RMSE per floor, inter-floor x/y/yaw/z errors) and
+each floor grid's occupied-cell precision/recall against the ground-truth walls within 1 and 2
+cells (`mfmap.export.score`, the scoring of tests/export).
 For the ablations the front stages (floors, mapping) run once and the graph and exports are
 redone per variant, since the switches only change the graph.
 """
@@ -104,6 +106,17 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
     return rows
 
 
+def grid_scores(out: Path, sim: Path) -> str:
+    """Occupied cells of each floor grid vs the ground-truth walls (as tests/export scores them)."""
+    from mfmap.export.score import score_build
+
+    lines = []
+    for tol in (1, 2):
+        for s in score_build(out, sim / "gt_cloud.ply", sim / "gt_floors.json", tolerance_cells=tol):
+            lines.append(f"grid.floor{s.floor_id}.tol{tol}_cells: precision {s.precision:.3f} recall {s.recall:.3f}")
+    return "  " + "\n  ".join(lines)
+
+
 def _fmt_eval(ev: dict[str, Any]) -> str:
     metrics = ev.get("metrics", ev)
     keys = sorted(
@@ -136,6 +149,7 @@ def main() -> None:
               f"({fig['rtf']:.1f}x real time), peak RSS {fig['peak_rss_mb']:.0f} MB")
         print("  stages: " + ", ".join(f"{k[6:-2]} {v:.1f} s" for k, v in fig.items() if k.startswith("stage_")))
         print(_fmt_eval(evaluate(out, sim)))
+        print(grid_scores(out, sim))
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ class GridBuilder:
     resolution_m: float = 0.05
     n_bearings: int = 1440
     max_range_m: float = 30.0
+    window_bins: int = 2  # each bearing is bounded by the nearest return within this many bins
     polygons: list[np.ndarray] = field(default_factory=list)  # (M, 2) float32 world xy
 
     cell_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -42,7 +43,8 @@ class GridBuilder:
         if band_xy.shape[0] == 0:
             return
         cells = np.floor(np.asarray(band_xy, dtype=np.float64) / self.resolution_m).astype(np.int64)
-        keys = np.unique((cells[:, 0] + _KEY_OFFSET) * _KEY_SPAN + (cells[:, 1] + _KEY_OFFSET))
+        keys = np.sort((cells[:, 0] + _KEY_OFFSET) * _KEY_SPAN + (cells[:, 1] + _KEY_OFFSET))
+        keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]  # (np.unique hashes: slower)
         self.pending.append(keys)
         self.pending_count += keys.shape[0]
         if self.pending_count > 2_000_000:
@@ -80,6 +82,13 @@ class GridBuilder:
         bins = np.clip(bins, 0, self.n_bearings - 1)
         nearest = np.full(self.n_bearings, np.inf)
         np.minimum.at(nearest, bins, rng)
+        # A spinning lidar's columns (and its beams' azimuth offsets) are sparser than the bins:
+        # a bin holding only the returns of the beams that pass over a desk or through a gap
+        # would paint a free spike across the obstacle. Bound each bearing by its neighbours.
+        k = self.window_bins
+        if k > 0:
+            ring = np.concatenate([nearest[-k:], nearest, nearest[:k]])
+            nearest = np.lib.stride_tricks.sliding_window_view(ring, 2 * k + 1).min(axis=1)
         # Bearings with no return stay unknown: the polygon collapses to the origin there.
         nearest[~np.isfinite(nearest)] = 0.0
         # Stop half a cell short of the hit so the obstacle's own cell is not painted free.

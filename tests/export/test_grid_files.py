@@ -119,3 +119,30 @@ def test_floors_json_has_transitions_and_connectors(building: SyntheticBuilding)
     (conn,) = doc["connectors"]
     assert conn["kind"] == "elevator" and conn["floors"] == [0, 1]
     assert doc["floors"][0]["connectors"] == [0] and doc["floors"][1]["connectors"] == [0]
+
+
+def test_first_point_per_voxel_is_np_unique_s() -> None:
+    from mfmap.export.mapdata import _first_per_cell, _voxel_keys
+
+    rng = np.random.default_rng(3)
+    for scale_m in (0.2, 8.0, 5000.0):  # the last one falls back to np.unique (too many bits)
+        points = rng.normal(size=(20_000, 3)) * scale_m
+        cells = np.floor(points / 0.05).astype(np.int64)
+        expected = np.unique(_voxel_keys(points, 0.05), return_index=True)[1]
+        assert np.array_equal(_first_per_cell(cells), expected), scale_m
+
+
+def test_a_tilted_pose_does_not_lift_the_floor_into_the_band() -> None:
+    # The floor 5-9 m around a robot whose estimated pose is pitched by 1.5 degrees (the robot
+    # stands level: in its frame the floor is at z = 0).
+    ang = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    rng = np.repeat([5.0, 7.0, 9.0], 720)
+    floor = np.column_stack([rng * np.cos(np.tile(ang, 3)), rng * np.sin(np.tile(ang, 3)), np.zeros(2160)])
+    pitch = math.radians(1.5)
+    c, s = math.cos(pitch), math.sin(pitch)
+    pose = np.array([[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    for level, expected in ((True, 0), (False, 1)):
+        maps = MapAccumulator(ExportConfig(grid_min_hits=1, grid_level_band=level), {0: 0.0})
+        maps.add(0, pose, floor, force_view=True)
+        occupied = int(maps.grid(0).occupied.sum())
+        assert (occupied > 50) == bool(expected), (level, occupied)

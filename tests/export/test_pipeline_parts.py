@@ -4,8 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from mfmap.export.write import Trajectory
 from mfmap.graph.synthetic import pose_xyyaw
-from mfmap.pipeline import _Cabin, _drop_cabin, _in_cabin, gravity_at_keyframes, single_floor
+from mfmap.pipeline import (
+    _Cabin,
+    _deskew,
+    _drop_cabin,
+    _floor_groups,
+    _in_cabin,
+    gravity_at_keyframes,
+    single_floor,
+)
 from mfmap.types import Extrinsics, ImuSeries, Keyframe
 
 
@@ -52,3 +61,46 @@ def test_single_floor_spans_the_log() -> None:
     seg = single_floor(5, 1_000)
     assert len(seg.floors) == 1 and seg.transitions == ()
     assert seg.floor_at(500) == 0 and seg.visits() == [(0, 5, 1_000)]
+
+
+def _interpolated(p0: np.ndarray, p1: np.ndarray, frac: float) -> np.ndarray:
+    """p0 moved by `frac` of the way to p1 (slerp of the relative rotation, linear translation)."""
+    from scipy.spatial.transform import Rotation
+
+    rel = np.linalg.inv(p0) @ p1
+    step = np.eye(4)
+    step[:3, :3] = Rotation.from_rotvec(frac * Rotation.from_matrix(rel[:3, :3]).as_rotvec()).as_matrix()
+    step[:3, 3] = frac * rel[:3, 3]
+    return p0 @ step
+
+
+def test_deskew_puts_a_moving_sweep_back_on_the_wall() -> None:
+    # 1 m/s forward and 0.5 rad/s of yaw, scans every 0.1 s; a wall 5 m ahead, x = 5.
+    poses = np.stack([pose_xyyaw(0.1 * k, 0.0, 0.0, 0.05 * k) for k in range(3)])
+    traj = Trajectory(np.arange(3, dtype=np.int64) * 100_000_000, poses, np.zeros(3, np.int32))
+    offsets = np.linspace(0, 99_000_000, 200).astype(np.int64)
+    wall = np.column_stack([np.full(200, 5.0), np.linspace(-2.0, 2.0, 200), np.full(200, 1.0)])
+    # What the lidar measures: each point in the base frame at its own firing time.
+    measured = np.stack([
+        (np.linalg.inv(_interpolated(poses[0], poses[1], t / 1e8)) @ np.append(w, 1.0))[:3]
+        for w, t in zip(wall, offsets, strict=True)
+    ])
+    smeared = measured @ poses[0][:3, :3].T + poses[0][:3, 3]
+    assert np.linalg.norm(smeared - wall, axis=1).max() > 0.2  # the smear the deskew removes
+    fixed = _deskew(measured, offsets, traj, 0) @ poses[0][:3, :3].T + poses[0][:3, 3]
+    assert np.abs(fixed - wall).max() < 1e-9
+    # The last scan has no next one: the motion from the scan before carries on.
+    measured_last = (wall - poses[2][:3, 3]) @ poses[2][:3, :3]
+    assert np.allclose(_deskew(measured_last, np.zeros(200, np.int64), traj, 2), measured_last)
+    # Across a gap (another floor, or a pause in the log) nothing is interpolated.
+    split = Trajectory(traj.stamps_ns, poses, np.array([0, 1, 2], np.int32))
+    assert _deskew(measured, offsets, split, 0) is measured
+
+
+def test_floor_groups_balance_scans() -> None:
+    floors = np.array([0] * 50 + [1] * 30 + [2] * 25, dtype=np.int32)
+    traj = Trajectory(np.arange(105, dtype=np.int64), np.tile(np.eye(4), (105, 1, 1)), floors)
+    used = {i: i for i in range(105)}
+    assert _floor_groups(used, traj, 2) == [{1, 2}, {0}]
+    assert _floor_groups(used, traj, 1) == [{0, 1, 2}]
+    assert _floor_groups(used, traj, 8) == [{0}, {1}, {2}]
