@@ -44,6 +44,11 @@ class MappingConfig(BaseModel):
     icp_min_threshold_m: float = Field(
         0.4, description="the adaptive correspondence threshold never goes below this"
     )
+    icp_max_gyro_disagreement_deg: float = Field(
+        0.2, ge=0.0,
+        description="with an IMU, keep the gyro's rotation for a scan whose registration turns "
+        "its heading more than this from the gyro's (0: off)",
+    )
     local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
     local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")
     keyframe_distance_m: float = Field(1.0, description="new keyframe after this much travel")
@@ -76,6 +81,11 @@ class MappingConfig(BaseModel):
     )
     loop_sigma_m: float = Field(0.01, description="loop edge noise (m)")
     loop_sigma_deg: float = Field(0.3, description="loop edge noise (deg)")
+    level_window_s: float = Field(
+        10.0, ge=0.0,
+        description="after stairs, level the pose by the mean accelerometer over this long "
+        "(0: off)",
+    )
     cabin_filter: bool = Field(True, description="drop returns from inside the elevator cabin")
     cabin_size_m: tuple[float, float] = Field(
         (2.4, 2.4), description="cabin box (x, y in the robot's heading frame during the ride)"
@@ -84,3 +94,9 @@ class MappingConfig(BaseModel):
         30.0, description="filter cabin returns this long before and after a ride"
     )
     seed: int = Field(0, description="seed for any random choice (perturbed loop checks)")
+    workers: int = Field(
+        2, ge=1,
+        description="processes mapping the runs of visits between elevator rides in parallel "
+        "(1: one pass in the build's process; >1 gives slightly different, still reproducible "
+        "results)",
+    )

@@ -7,6 +7,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from mfmap.types import F32, F64, I64, ImuSeries, OdomSeries
 
+_RECENT = 8  # poses remembered per interpolator (stamps asked for again soon)
+
 
 def make_pose(rotation: F64, translation: F64) -> F64:
     pose = np.eye(4)
@@ -71,15 +73,26 @@ class PoseInterpolator:
         self.stamp_ns = np.asarray(stamp_ns)[order]
         self.xyz = np.asarray(xyz, dtype=np.float64)[order]
         rotations = Rotation.from_quat(np.asarray(quat_xyzw, dtype=np.float64)[order])
-        self._slerp = Slerp(self._seconds(self.stamp_ns), rotations)
+        self._t_s = self._seconds(self.stamp_ns)
+        self._slerp = Slerp(self._t_s, rotations)
+        # The mapper asks for each scan's stamp twice (as the end of one motion step and the
+        # start of the next): a few recent answers save half of the slerps.
+        self._recent: dict[int, F64] = {}
 
     def _seconds(self, stamp_ns: I64 | int) -> F64:
         return (np.asarray(stamp_ns, dtype=np.int64) - int(self.stamp_ns[0])).astype(np.float64) / 1e9
 
     def at(self, stamp_ns: int) -> F64:
-        t = float(np.clip(self._seconds(stamp_ns), 0.0, self._seconds(self.stamp_ns[-1])))
-        xyz = np.array([np.interp(t, self._seconds(self.stamp_ns), self.xyz[:, k]) for k in range(3)])
-        return make_pose(self._slerp([t]).as_matrix()[0], xyz)
+        cached = self._recent.get(stamp_ns)
+        if cached is not None:
+            return cached.copy()
+        t = float(np.clip(self._seconds(stamp_ns), 0.0, self._t_s[-1]))
+        xyz = np.array([np.interp(t, self._t_s, self.xyz[:, k]) for k in range(3)])
+        pose = make_pose(self._slerp([t]).as_matrix()[0], xyz)
+        if len(self._recent) >= _RECENT:
+            self._recent.pop(next(iter(self._recent)))
+        self._recent[stamp_ns] = pose
+        return pose.copy()
 
     def covers(self, stamp_ns: int) -> bool:
         return bool(self.stamp_ns[0] <= stamp_ns <= self.stamp_ns[-1])
@@ -131,13 +144,21 @@ class GyroIntegrator:
         self._slerp = Slerp((self.stamp_ns - self.stamp_ns[0]).astype(np.float64) / 1e9,
                             Rotation.from_matrix(mats))
         self._end_s = float((self.stamp_ns[-1] - self.stamp_ns[0]) / 1e9)
+        self._recent: dict[int, Rotation] = {}  # see PoseInterpolator
 
     def covers(self, stamp_ns: int) -> bool:
         return bool(self.stamp_ns[0] <= stamp_ns <= self.stamp_ns[-1])
 
     def _at(self, stamp_ns: int) -> Rotation:
+        cached = self._recent.get(stamp_ns)
+        if cached is not None:
+            return cached
         t = float(np.clip((stamp_ns - int(self.stamp_ns[0])) / 1e9, 0.0, self._end_s))
-        return self._slerp([t])[0]
+        rotation = self._slerp([t])[0]
+        if len(self._recent) >= _RECENT:
+            self._recent.pop(next(iter(self._recent)))
+        self._recent[stamp_ns] = rotation
+        return rotation
 
     def delta(self, start_ns: int, end_ns: int) -> F64:
         """Rotation matrix of the base at end_ns expressed in the base at start_ns."""

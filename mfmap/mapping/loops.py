@@ -53,20 +53,28 @@ def ring_key(desc: F64) -> F64:
 
 
 def descriptor_distance(a: F64, b: F64) -> tuple[float, int]:
-    """Scan Context distance (1 - mean column cosine) minimised over yaw shifts; (dist, shift)."""
-    best, best_shift = 2.0, 0
+    """Scan Context distance (1 - mean column cosine) minimised over yaw shifts; (dist, shift).
+
+    All shifts at once: column j of b rolled by s is column (j - s) mod SECTORS of b, so one
+    matrix product holds every column pair's dot product.
+    """
+    sectors = a.shape[1]
     norm_a = np.linalg.norm(a, axis=0)
-    for shift in range(SECTORS):
-        rolled = np.roll(b, shift, axis=1)
-        norm_b = np.linalg.norm(rolled, axis=0)
-        valid = (norm_a > 0) & (norm_b > 0)
-        if valid.sum() < SECTORS // 4:
-            continue
-        cos = (a[:, valid] * rolled[:, valid]).sum(axis=0) / (norm_a[valid] * norm_b[valid])
-        dist = 1.0 - float(cos.mean())
-        if dist < best:
-            best, best_shift = dist, shift
-    return best, best_shift
+    norm_b = np.linalg.norm(b, axis=0)
+    source = (np.arange(sectors)[None, :] - np.arange(sectors)[:, None]) % sectors  # [shift, j]
+    columns = np.arange(sectors)[None, :]
+    dots = (a.T @ b)[columns, source]
+    norm_rolled = norm_b[source]
+    valid = (norm_a[None, :] > 0) & (norm_rolled > 0)
+    count = valid.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cos = np.where(valid, dots / (norm_a[None, :] * norm_rolled), 0.0)
+        dist = 1.0 - cos.sum(axis=1) / count
+    dist = np.where(count >= sectors // 4, dist, np.inf)
+    shift = int(np.argmin(dist))  # the first of equal minima, as a scan over shifts finds
+    if not dist[shift] < 2.0:
+        return 2.0, 0
+    return float(dist[shift]), shift
 
 
 def plane_fit(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: F64,

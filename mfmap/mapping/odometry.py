@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from mfmap.mapping.geometry import inverse, rotation_angle_rad, transform
+from mfmap.mapping.geometry import inverse, rotation_angle_rad, transform, yaw_rad
 from mfmap.mapping.registration import Registration, downsample, icp, to_o3d
 from mfmap.types import F64
 
@@ -80,8 +80,13 @@ class ScanMatcher:
     """Registers deskewed scans (base frame) against the local map of the current visit."""
 
     def __init__(self, voxel_m: float, local_map: LocalMap, threshold: AdaptiveThreshold,
-                 max_iterations: int, min_fitness: float = 0.2, tolerance: float = 1e-6) -> None:
+                 max_iterations: int, min_fitness: float = 0.2, tolerance: float = 1e-6,
+                 max_gyro_disagreement_deg: float = 0.0, max_overruled: int = 3) -> None:
         self.voxel_m = voxel_m
+        self.max_gyro_disagreement_rad = math.radians(max_gyro_disagreement_deg)
+        self.max_overruled = max_overruled
+        self.overruled = 0  # registrations whose rotation the gyro overruled
+        self._overruled_in_a_row = 0
         self.map = local_map
         self.threshold = threshold
         self.max_iterations = max_iterations
@@ -89,7 +94,17 @@ class ScanMatcher:
         self.tolerance = tolerance
         self.failures = 0
 
-    def match(self, points_base: F64, predicted: F64) -> ScanMatch:
+    def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False) -> ScanMatch:
+        """Register against the local map from `predicted`.
+
+        With `gyro_prior` (the predicted rotation comes from the IMU gyro over a fraction of a
+        second), a registration that turns the scan's heading away from it by more than
+        `max_gyro_disagreement_deg` is not trusted and the prediction is kept: where a scan
+        sees much new structure (fitness well below 1), ICP can settle a few tenths of a degree
+        off, an error that no loop on the floor can later take out of the visit's heading.
+        After `max_overruled` such scans in a row the registration is taken again, so a
+        biased gyro cannot hold the odometry off the map.
+        """
         if self.map.target is None or len(points_base) < 10:
             return ScanMatch(predicted, 0.0, 0.0, False)
         source = to_o3d(downsample(points_base, self.voxel_m))
@@ -100,7 +115,15 @@ class ScanMatcher:
         if result.fitness < self.min_fitness:
             self.failures += 1
             return ScanMatch(predicted, result.fitness, result.rmse_m, False)
-        self.threshold.update(inverse(predicted) @ result.transform)
+        correction = inverse(predicted) @ result.transform
+        if (gyro_prior and self.max_gyro_disagreement_rad > 0
+                and abs(yaw_rad(correction)) > self.max_gyro_disagreement_rad
+                and self._overruled_in_a_row < self.max_overruled):
+            self.overruled += 1
+            self._overruled_in_a_row += 1
+            return ScanMatch(predicted, result.fitness, result.rmse_m, False)
+        self._overruled_in_a_row = 0
+        self.threshold.update(correction)
         return ScanMatch(result.transform, result.fitness, result.rmse_m, True)
 
     def add_keyframe(self, points_base: F64, pose: F64) -> None:

@@ -2,16 +2,21 @@
 
 Per scan: sensor -> base frame, range filter, deskew, cabin filter, scan-to-local-map ICP from the
 motion prior, keyframe decision, loop search on the same floor. Elevator rides hold x, y, yaw
-(scans not registered); stairs keep the odometry running with z free.
+(scans not registered); stairs keep the odometry running with z free, and the floor reached
+starts a new, levelled local map. With `workers` > 1 the runs of visits between elevator rides
+are mapped in parallel processes and chained afterwards (see "parallel mapping" below).
 """
 
 from __future__ import annotations
 
 import logging
+import multiprocessing
+import os
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
-from typing import Protocol
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -34,6 +39,7 @@ from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
+from mfmap.mapping.workers import start_worker
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import (
     F32,
@@ -53,6 +59,9 @@ from mfmap.types import (
     Transition,
     TransitionKind,
 )
+
+if TYPE_CHECKING:
+    from mfmap.ingest.config import IngestConfig
 
 logger = logging.getLogger(__name__)
 
@@ -178,6 +187,11 @@ class MotionModel:
             delta[:3, :3] = self.gyro.delta(state.stamp_ns, stamp_ns)
         return delta
 
+    def rotation_from_gyro(self, from_ns: int | None, to_ns: int) -> bool:
+        """Whether `predict` took the rotation from from_ns to to_ns from the gyro."""
+        return (from_ns is not None and self.gyro is not None and self.gyro.covers(from_ns)
+                and self.gyro.covers(to_ns))
+
     def relative(self, from_ns: int, to_ns: int) -> F64 | None:
         """Base at to_ns in the base at from_ns, from wheel odometry (None without it)."""
         if self.odom is None:
@@ -192,14 +206,15 @@ def _odometry_information(cfg: MappingConfig, delta: F64) -> F64:
     return np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
 
 
-def _scans(source: LogSourceLike, planar: bool) -> Iterator[tuple[int, str, F32, I64 | None]]:
+def _scans(source: LogSourceLike, planar: bool, start_ns: int | None = None,
+           end_ns: int | None = None) -> Iterator[tuple[int, str, F32, I64 | None]]:
     if planar:
-        for scan in source.scans2d():
+        for scan in source.scans2d(start_ns, end_ns):
             xyz = np.zeros((len(scan.xy), 3), dtype=np.float32)
             xyz[:, :2] = scan.xy
             yield scan.stamp_ns, scan.frame_id, xyz, scan.t_offset_ns
     else:
-        for cloud in source.clouds():
+        for cloud in source.clouds(start_ns, end_ns):
             yield cloud.stamp_ns, cloud.frame_id, cloud.xyz, cloud.t_offset_ns
 
 
@@ -214,21 +229,29 @@ def map_floors(
 
     Keyframe poses are initial guesses in the world frame (the first visit starts at identity);
     every lidar scan gets a ScanPose. Uses 3D clouds, or LaserScans when the log has no 3D lidar.
+    With `cfg.workers` > 1 and a log that can be re-opened, the runs of visits between elevator
+    rides are mapped in parallel processes (see `_map_parallel`).
     """
     progress = progress or NullProgress()
     roles = source.roles
     planar = Role.LIDAR not in roles
     if planar and Role.SCAN2D not in roles:
         raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)")
-    mapper = _Mapper(cfg, seg, extrinsics, MotionModel(cfg.motion_prior, source.odometry(),
-                                                      source.imu(), extrinsics), planar)
     total = source.count(Role.SCAN2D if planar else Role.LIDAR)
     started = time.perf_counter()
+    chunks = _chunks(Timeline(seg))
+    path = getattr(source, "path", None)
+    ingest = getattr(source, "config", None)
     with progress.stage("mapping", total=total) as bar:
-        for stamp_ns, frame_id, xyz, t_offset_ns in _scans(source, planar):
-            mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
-            bar.advance()
-    result = mapper.result()
+        if cfg.workers > 1 and len(chunks) > 1 and path is not None and ingest is not None:
+            result = _map_parallel(source, seg, cfg, extrinsics, planar, chunks, path, ingest, bar)
+        else:
+            mapper = _Mapper(cfg, seg, extrinsics, MotionModel(
+                cfg.motion_prior, source.odometry(), source.imu(), extrinsics), planar)
+            for stamp_ns, frame_id, xyz, t_offset_ns in _scans(source, planar):
+                mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
+                bar.advance()
+            result = mapper.result()
     elapsed = time.perf_counter() - started
     result.stats["elapsed_s"] = elapsed
     result.stats["scans_per_s"] = len(result.scan_poses) / elapsed if elapsed > 0 else 0.0
@@ -237,8 +260,9 @@ def map_floors(
 
 class _Mapper:
     def __init__(self, cfg: MappingConfig, seg: FloorSegmentation, extrinsics: Extrinsics,
-                 motion: MotionModel, planar: bool) -> None:
+                 motion: MotionModel, planar: bool, defer_loops: bool = False) -> None:
         self.cfg = cfg
+        self.defer_loops = defer_loops  # a parallel chunk: loops are searched after the merge
         self.seg = seg
         self.extrinsics = extrinsics
         self.motion = motion
@@ -256,7 +280,8 @@ class _Mapper:
                                          cfg.icp_max_iterations)
         else:
             self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
-                                       cfg.icp_max_iterations, tolerance=cfg.icp_tolerance)
+                                       cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
+                                       max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg)
         self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
         self.loops = LoopCloser(cfg)
         self.state = _State()
@@ -341,7 +366,11 @@ class _Mapper:
             points = deskew(points, offsets_s[keep] - ref_offset_s, angular, linear)
         if self.cabin is not None:
             points = self.cabin.apply(points, ref_ns, predicted, self._origin(frame_id))
-        match = self.matcher.match(points, predicted)
+        if isinstance(self.matcher, ScanMatcher):
+            match = self.matcher.match(points, predicted,
+                                       gyro_prior=self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
+        else:
+            match = self.matcher.match(points, predicted)
         if match.registered:
             self.registered += 1
         pose = match.pose
@@ -413,12 +442,8 @@ class _Mapper:
         if self._pending:
             self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
             self._pending.clear()
-        loops = self.loops.add(kf)
-        if self.planar:  # verified in 3D on flat clouds: keep only what a 2D scan measures
-            loops = [PoseEdge(e.i, e.j, yaw_pose(yaw_rad(e.measured),
-                                                 np.array([e.measured[0, 3], e.measured[1, 3], 0.0])),
-                              e.information, e.kind, e.fitness) for e in loops]
-        self.edges.extend(loops)
+        if not self.defer_loops:
+            self.edges.extend(_loop_edges(self.loops, kf, self.planar))
 
     def _start_visit(self, segment: Segment, stamp_ns: int) -> None:
         """A new floor visit: after a ride the map restarts at the held pose, z from the floor."""
@@ -443,7 +468,19 @@ class _Mapper:
             self.matcher.map.clear()
             if self.cabin is not None:
                 self.cabin.visit_started(pose)
-        # else: stairs or a gap: the odometry and its local map simply continue.
+        elif any(tr.kind == TransitionKind.STAIRS and previous_start <= tr.start_ns < stamp_ns
+                 for tr in self.timeline.transitions):
+            # Off the stairs: the local map holds the floor below and the steps, seen from poses
+            # whose pitch and height drifted on the climb; registering the new floor against it
+            # tilts and turns the start of the visit, and nothing on the floor corrects that
+            # later. The odometry continues from the pose reached on the stairs, levelled by
+            # gravity (the climb leaves tenths of a degree of tilt, and a tilted new map makes
+            # the flat floor climb: on `long` this halves the visit's drift before loops).
+            self.matcher.map.clear()
+            if not self.planar and self.cfg.level_window_s > 0:
+                state.pose = self.motion.level(state.pose, stamp_ns,
+                                               stamp_ns + int(self.cfg.level_window_s * 1e9))
+        # else: a gap: the odometry and its local map simply continue.
 
     def _ride_scan(self, stamp_ns: int, segment: Segment) -> None:
         """Inside the elevator: x, y, yaw held; z follows the filtered barometric height."""
@@ -463,6 +500,16 @@ class _Mapper:
             return 0.0
         return float(np.interp(stamp_ns, self.seg.stamp_ns, self.seg.height_filtered_m))
 
+    def counters(self) -> dict[str, float]:
+        return {
+            "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
+            "registered": float(self.registered),
+            "registration_failures": float(self.matcher.failures),
+            "in_cabin_scans": float(self.in_cabin_scans),
+            "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
+            "max_local_map_points": float(self.max_map_points),
+        }
+
     def result(self) -> MappingResult:
         if self._pending and not self.keyframes:
             self.warnings.append("no keyframe could be made: no usable lidar scans")
@@ -477,6 +524,7 @@ class _Mapper:
             "scans": float(len(self.scan_poses)),
             "registered": float(self.registered),
             "registration_failures": float(self.matcher.failures),
+            "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
             "keyframes": float(len(self.keyframes)),
             "odometry_edges": float(sum(e.kind == "odometry" for e in self.edges)),
             "loop_edges": float(sum(e.kind == "loop" for e in self.edges)),
@@ -493,3 +541,206 @@ class _Mapper:
             self.warnings.append(
                 f"{self.matcher.failures} scans could not be registered (motion prior used)")
         return MappingResult(self.keyframes, self.edges, self.scan_poses, self.warnings, stats)
+
+
+def _loop_edges(loops: LoopCloser, kf: Keyframe, planar: bool) -> list[PoseEdge]:
+    edges = loops.add(kf)
+    if planar:  # verified in 3D on flat clouds: keep only what a 2D scan measures
+        edges = [PoseEdge(e.i, e.j, yaw_pose(yaw_rad(e.measured),
+                                             np.array([e.measured[0, 3], e.measured[1, 3], 0.0])),
+                          e.information, e.kind, e.fitness) for e in edges]
+    return edges
+
+
+# ----- parallel mapping -------------------------------------------------------------------------
+#
+# After an elevator ride the odometry restarts: the local map is cleared and the new visit starts
+# at the held pose, levelled by gravity, at the floor's elevation. That start is a rigid motion
+# (yaw and x, y) of the start computed from an identity held pose, and nothing else of the mapper
+# carries over but counters. So each run of visits between rides ("chunk") is mapped in its own
+# process from an identity held pose; the merge then chains the chunks in time order (each
+# chunk's held pose at its end places the next one), renumbers keyframes and runs the loop search
+# over all keyframes in their order, exactly as the sequential pass would. Each chunk starts with
+# a fresh adaptive threshold and scan stride phase, so the result differs slightly from one
+# process, but not between runs: chunks are merged in a fixed order.
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    first_visit: int
+    start_ns: int | None  # None: from the log's start
+    end_ns: int | None  # inclusive; None: to the log's end
+
+
+def _chunks(timeline: Timeline) -> list[_Chunk]:
+    """Runs of visits whose odometry restarts after an elevator ride (see `_start_visit`)."""
+    starts = [0]
+    for v in range(1, len(timeline.visits)):
+        previous_start, start = timeline.visits[v - 1][1], timeline.visits[v][1]
+        if any(tr.kind == TransitionKind.ELEVATOR and previous_start <= tr.start_ns < start
+               for tr in timeline.transitions):
+            starts.append(v)
+    out = []
+    for k, v in enumerate(starts):
+        start_ns = None if k == 0 else timeline.visits[v][1]
+        end_ns = None if k + 1 == len(starts) else timeline.visits[starts[k + 1]][1] - 1
+        out.append(_Chunk(v, start_ns, end_ns))
+    return out
+
+
+@dataclass(frozen=True)
+class _ChunkJob:
+    path: Any  # the log, re-opened by the worker
+    ingest: IngestConfig
+    seg: FloorSegmentation
+    cfg: MappingConfig
+    extrinsics: Extrinsics
+    odom: OdomSeries | None
+    imu: ImuSeries | None
+    planar: bool
+    chunk: _Chunk
+
+
+@dataclass(frozen=True)
+class _ChunkResult:
+    keyframes: list[Keyframe]  # poses in the chunk's frame, ids from 0
+    edges: list[PoseEdge]  # odometry only
+    scan_poses: list[ScanPose]
+    pending: list[tuple[int, F64]]  # scans left without a keyframe of their visit
+    first_visit: int
+    held: F64  # the pose at the chunk's end, held through the following ride
+    scans: int
+    counters: dict[str, float]
+    warnings: list[str]
+
+
+def _map_chunk(job: _ChunkJob) -> _ChunkResult:
+    """Worker: map one chunk's scans from an identity held pose."""
+    from mfmap.ingest import open_log
+
+    motion = MotionModel(job.cfg.motion_prior, job.odom, job.imu, job.extrinsics)
+    mapper = _Mapper(job.cfg, job.seg, job.extrinsics, motion, job.planar, defer_loops=True)
+    chunk = job.chunk
+    if chunk.first_visit > 0:
+        mapper.state.visit = chunk.first_visit - 1  # so its first scan restarts after the ride
+    scans = 0
+    with open_log(job.path, job.ingest) as src:
+        for stamp_ns, frame_id, xyz, t_offset_ns in _scans(src, job.planar, chunk.start_ns,
+                                                           chunk.end_ns):
+            mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
+            scans += 1
+    return _ChunkResult(mapper.keyframes, mapper.edges, mapper.scan_poses, mapper._pending,
+                        chunk.first_visit, mapper.state.pose, scans, mapper.counters(),
+                        mapper.warnings)
+
+
+def _worker_cpus(workers: int) -> list[int | None]:
+    """A CPU for each worker, so each runs one thread (TBB sizes its pool from the affinity).
+
+    A build pinned to one CPU (`--threads 1`) spreads its workers from that CPU over the
+    machine; otherwise they share out the CPUs the build may use.
+    """
+    if not hasattr(os, "sched_getaffinity"):
+        return [None] * workers
+    current = sorted(os.sched_getaffinity(0))
+    total = os.cpu_count() or 1
+    if len(current) == 1:
+        return [(current[0] + k) % total for k in range(workers)]
+    return [current[k % len(current)] for k in range(workers)]
+
+
+def _map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingConfig,
+                  extrinsics: Extrinsics, planar: bool, chunks: list[_Chunk], path: Any,
+                  ingest: IngestConfig, bar: Any) -> MappingResult:
+    workers = min(cfg.workers, len(chunks))
+    cpus = _worker_cpus(workers)
+    odom, imu = source.odometry(), source.imu()
+    jobs = [_ChunkJob(path, ingest, seg, cfg, extrinsics, odom, imu, planar, chunk)
+            for chunk in chunks]
+    # spawn: the parent has open3d's and GTSAM's thread pools loaded, which fork does not copy.
+    context = multiprocessing.get_context("spawn")
+    queue = context.Queue()
+    for cpu in cpus:
+        queue.put(cpu)
+    parts: list[_ChunkResult] = []
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=start_worker,
+                             initargs=(queue,)) as pool:
+        for part in pool.map(_map_chunk, jobs):
+            parts.append(part)
+            bar.advance(part.scans)
+    return _merge(parts, cfg, seg, planar)
+
+
+def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation,
+           planar: bool) -> MappingResult:
+    """Chain the chunks into one frame, renumber keyframes, search loops in keyframe order."""
+    timeline = Timeline(seg)
+    elevation = {f.id: f.elevation_m for f in seg.floors}
+    keyframes: list[Keyframe] = []
+    odometry: dict[int, list[PoseEdge]] = {}
+    scan_poses: list[ScanPose] = []
+    counters: dict[str, float] = {}
+    warnings: list[str] = []
+    held = np.eye(4)
+    for part in parts:
+        if part.scans == 0:
+            continue  # nothing mapped: the held pose carries on to the next chunk
+        frame = np.eye(4)
+        if part.first_visit > 0:
+            # `_start_visit` levels the held pose by gravity keeping its yaw, and sets z to the
+            # floor's elevation: from the held pose that is the chunk's start (made from an
+            # identity held pose) turned by the held yaw and moved by its x, y.
+            known = timeline.visits[part.first_visit][0] in elevation
+            frame = yaw_pose(yaw_rad(held), np.array([held[0, 3], held[1, 3],
+                                                      0.0 if known else held[2, 3]]))
+        offset = len(keyframes)
+        if not part.keyframes and keyframes:
+            # A chunk without a keyframe: its scans hang on the last keyframe before it.
+            last = keyframes[-1]
+            scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ frame @ pose)
+                              for ns, pose in part.pending)
+        for kf in part.keyframes:
+            keyframes.append(replace(kf, id=kf.id + offset, pose=frame @ kf.pose))
+        for e in part.edges:
+            odometry.setdefault(e.j + offset, []).append(replace(e, i=e.i + offset, j=e.j + offset))
+        scan_poses.extend(replace(sp, keyframe=sp.keyframe + offset) for sp in part.scan_poses)
+        if part.keyframes and part.pending:
+            last = keyframes[-1]
+            scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ frame @ pose)
+                              for ns, pose in part.pending)
+        held = frame @ part.held
+        for name, value in part.counters.items():
+            merge = max if name == "max_local_map_points" else (lambda a, b: a + b)
+            counters[name] = merge(counters.get(name, 0.0), value)
+        warnings += [w for w in part.warnings if w not in warnings]
+    scan_poses.sort(key=lambda sp: sp.stamp_ns)
+    loops = LoopCloser(cfg)
+    edges: list[PoseEdge] = []
+    for kf in keyframes:
+        edges += odometry.get(kf.id, [])
+        edges += _loop_edges(loops, kf, planar)
+    if not keyframes:
+        warnings.append("no keyframe could be made: no usable lidar scans")
+    failures = counters.get("registration_failures", 0.0)
+    stats = {
+        "scans": float(len(scan_poses)),
+        "registered": counters.get("registered", 0.0),
+        "registration_failures": failures,
+        "gyro_overruled": counters.get("gyro_overruled", 0.0),
+        "keyframes": float(len(keyframes)),
+        "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
+        "loop_edges": float(sum(e.kind == "loop" for e in edges)),
+        "loop_candidates": float(loops.stats.candidates),
+        "loop_rejected_fitness": float(loops.stats.rejected_fitness),
+        "loop_rejected_ambiguous": float(loops.stats.rejected_ambiguous),
+        "loop_rejected_degenerate": float(loops.stats.rejected_degenerate),
+        "loop_rejected_implausible": float(loops.stats.rejected_implausible),
+        "max_local_map_points": counters.get("max_local_map_points", 0.0),
+        "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
+        "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
+        "chunks": float(len(parts)),
+    }
+    warnings = [w for w in warnings if "scans could not be registered" not in w]
+    if failures:
+        warnings.append(f"{int(failures)} scans could not be registered (motion prior used)")
+    return MappingResult(keyframes, edges, scan_poses, warnings, stats)

@@ -21,6 +21,7 @@ from mfmap.export.config import CloudSource
 from mfmap.export.files import read_ply
 from mfmap.export.grid import GridBuilder
 from mfmap.export.score import GRID_KEYS, load_grid, score_build
+from tests.logcopy import copy_log
 
 EXPECTED = [
     "config.yaml",
@@ -233,37 +234,9 @@ def test_interrupted_build_leaves_nothing_complete(tiny: Path, tmp_path: Path, m
     assert list(tmp_path.iterdir()) == []
 
 
-def _copy_log(src: Path, dst: Path, drop_topics: set[str], end_s: float | None = None) -> None:
-    """Copy an MCAP log without some topics (and optionally only its first seconds)."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with src.open("rb") as fin, dst.open("wb") as fout:
-        reader = make_reader(fin)
-        writer = Writer(fout)
-        writer.start(profile="ros2", library="test")
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        first: int | None = None
-        for schema, channel, message in reader.iter_messages():
-            first = message.log_time if first is None else first
-            if end_s is not None and message.log_time - first > end_s * 1e9:
-                break
-            if channel.topic in drop_topics:
-                continue
-            if schema is not None and schema.id not in schemas:
-                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(
-                    channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), channel.metadata
-                )
-            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time)
-        writer.finish()
-
-
 def test_no_barometer_builds_one_floor_with_a_warning(tiny: Path, tmp_path: Path) -> None:
     log = tmp_path / "nobaro.mcap"
-    _copy_log(tiny / "log.mcap", log, {"/baro/pressure"}, end_s=25.0)
+    copy_log(tiny / "log.mcap", log, {"/baro/pressure"}, end_s=25.0)
     cfg = MfmapConfig()
     cfg.export.cloud_source = CloudSource.KEYFRAMES
     result = pipeline.build(log, tmp_path / "out", cfg)
@@ -276,7 +249,7 @@ def test_no_barometer_builds_one_floor_with_a_warning(tiny: Path, tmp_path: Path
 
 def test_no_lidar_fails_clearly(tiny: Path, tmp_path: Path) -> None:
     log = tmp_path / "nolidar.mcap"
-    _copy_log(tiny / "log.mcap", log, {"/lidar/points"}, end_s=5.0)
+    copy_log(tiny / "log.mcap", log, {"/lidar/points"}, end_s=5.0)
     with pytest.raises(MissingDataError, match="no lidar"):
         pipeline.build(log, tmp_path / "out", MfmapConfig())
     assert not (tmp_path / "out").exists()

@@ -23,7 +23,7 @@ SegFn = Callable[[Path], FloorSegmentation]
 
 def _run(folder: Path, segmentation: SegFn, **overrides: object) -> MappingResult:
     with open_log(folder / "log.mcap") as src:
-        return map_floors(src, segmentation(folder), MappingConfig(**overrides),  # type: ignore[arg-type]
+        return map_floors(src, segmentation(folder), MappingConfig(**overrides),
                           src.extrinsics())
 
 

@@ -20,7 +20,7 @@ def _errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 def _load(path: Path) -> np.ndarray:
-    return np.asarray(o3d.io.read_point_cloud(str(path)).points)
+    return np.asarray(o3d.io.read_point_cloud(path).points)
 
 
 def test_real_scan_pair_within_2cm_and_0p2deg() -> None:
@@ -49,12 +49,29 @@ def test_starting_far_off_is_not_silently_accepted() -> None:
 
 @pytest.mark.shared
 def test_fast_gicp_pcd_pair(shared_dir: Path) -> None:
+    """fast_gicp's pair is small_gicp's pair: the issue's bar holds against the better truth.
+
+    The two PCDs hold exactly the points of small_gicp's source/target PLYs, but the two
+    projects publish truths for them that differ by 1.9 cm and 0.22 degrees, more than the
+    0.2 degree bar. Neither is a surveyed truth (fast_gicp's own test accepts 5 cm and 1 degree
+    against its file). Fine registrations land near small_gicp's: point-to-plane here, and
+    open3d's GICP or point-to-plane at 0.05-0.25 m voxels land 0.4-1.4 cm from it.
+    """
     folder = shared_dir / "realdata" / "lidar" / "fast_gicp"
     pcds = sorted(folder.glob("*.pcd"))
-    truth = np.loadtxt(folder / "relative.txt")
-    result = register_pair(_load(pcds[1]), _load(pcds[0]))
-    trans_m, rot_deg = _errors(result.transform, truth)
-    # fast_gicp's and small_gicp's published truths for this same pair differ by 1.9 cm and
-    # 0.23 deg, so this older truth is only good to about that.
+    target, source = _load(pcds[0]), _load(pcds[1])
+    same_target, same_source = _load(DATA / "target.ply"), _load(DATA / "source.ply")
+    assert np.array_equal(np.sort(target, axis=0), np.sort(same_target, axis=0))
+    assert np.array_equal(np.sort(source, axis=0), np.sort(same_source, axis=0))
+    fast_truth = np.loadtxt(folder / "relative.txt")
+    small_truth = np.loadtxt(DATA / "T_target_source.txt")
+    truths_m, truths_deg = _errors(fast_truth, small_truth)
+    assert truths_m > 0.019 and truths_deg > 0.2
+    result = register_pair(source, target)
+    trans_m, rot_deg = _errors(result.transform, small_truth)
+    assert trans_m < 0.02
+    assert rot_deg < 0.2
+    # Against fast_gicp's own truth: no further off than the two truths are from each other.
+    trans_m, rot_deg = _errors(result.transform, fast_truth)
     assert trans_m < 0.035
     assert rot_deg < 0.4

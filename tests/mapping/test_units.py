@@ -56,3 +56,68 @@ def test_pose_graph_spreads_a_loop_correction() -> None:
     out = optimize_poses(poses, edges, anchor=0)
     assert out[4][0, 3] == pytest.approx(4.0, abs=0.005)
     assert out[2][0, 3] == pytest.approx(2.0, abs=0.01)
+
+
+def _descriptor_distance_by_shift(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
+    """The definition, one yaw shift at a time (what the vectorised version must reproduce)."""
+    best, best_shift = 2.0, 0
+    norm_a = np.linalg.norm(a, axis=0)
+    for shift in range(a.shape[1]):
+        rolled = np.roll(b, shift, axis=1)
+        norm_b = np.linalg.norm(rolled, axis=0)
+        valid = (norm_a > 0) & (norm_b > 0)
+        if valid.sum() < a.shape[1] // 4:
+            continue
+        cos = (a[:, valid] * rolled[:, valid]).sum(axis=0) / (norm_a[valid] * norm_b[valid])
+        if 1.0 - float(cos.mean()) < best:
+            best, best_shift = 1.0 - float(cos.mean()), shift
+    return best, best_shift
+
+
+def test_descriptor_distance_matches_the_per_shift_definition() -> None:
+    rng = np.random.default_rng(1)
+    for k in range(60):
+        a = np.log1p(rng.poisson(1.0, (20, 60)) * (rng.random((20, 60)) < 0.3))
+        b = np.roll(a, int(rng.integers(60)), axis=1) + 0.1 * rng.random((20, 60)) * (a > 0)
+        if k % 3 == 0:  # an unrelated place
+            b = np.log1p(rng.poisson(1.0, (20, 60)) * (rng.random((20, 60)) < 0.1))
+        if k % 7 == 0:  # too few occupied sectors for most shifts
+            a[:, :50] = 0.0
+        dist, shift = descriptor_distance(a, b)
+        want_dist, want_shift = _descriptor_distance_by_shift(a, b)
+        assert shift == want_shift
+        assert dist == pytest.approx(want_dist, abs=1e-12)
+
+
+def _room(rng: np.random.Generator) -> np.ndarray:
+    """Points on the walls and floor of an 8 m x 5 m room with a pillar, robot at the origin."""
+    wall = []
+    for x0, x1, y0, y1 in ((-4, 4, -2.5, -2.5), (-4, 4, 2.5, 2.5), (-4, -4, -2.5, 2.5),
+                           (4, 4, -2.5, 2.5), (1.0, 1.4, 1.0, 1.0), (1.0, 1.0, 1.0, 1.4)):
+        t = rng.uniform(0, 1, 1500)
+        wall.append(np.c_[x0 + t * (x1 - x0), y0 + t * (y1 - y0), rng.uniform(-0.4, 1.5, 1500)])
+    wall.append(np.c_[rng.uniform(-4, 4, 3000), rng.uniform(-2.5, 2.5, 3000), np.full(3000, -0.4)])
+    return np.concatenate(wall)
+
+
+def test_gyro_overrules_a_registration_that_turns_the_heading_away() -> None:
+    from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
+
+    rng = np.random.default_rng(0)
+    room = _room(rng)
+    predicted = yaw_pose(np.radians(1.0))  # the truth is identity: the prior is 1 degree off
+
+    def matcher() -> ScanMatcher:
+        local_map = LocalMap(0.1, 10, 30.0)
+        local_map.add(room, np.zeros(3))
+        return ScanMatcher(0.1, local_map, AdaptiveThreshold(0.5, 0.0, 10.0, 0.3), 30,
+                           max_gyro_disagreement_deg=0.2, max_overruled=2)
+
+    free = matcher().match(room, predicted, gyro_prior=False)
+    assert free.registered
+    assert abs(np.degrees(np.arctan2(free.pose[1, 0], free.pose[0, 0]))) < 0.05
+    gated = matcher()
+    kept = [gated.match(room, predicted, gyro_prior=True) for _ in range(3)]
+    assert [m.registered for m in kept] == [False, False, True]  # the 3rd in a row is taken
+    assert np.array_equal(kept[0].pose, predicted)
+    assert gated.overruled == 2
