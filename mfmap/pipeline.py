@@ -337,9 +337,15 @@ def accumulate(
         # One floor group per process (a floor's cloud and grid never depend on another floor,
         # so the maps are those of one pass). This process takes the first group itself.
         # spawn: the parent holds open3d's and GTSAM's thread pools, which fork does not copy.
-        cpus = _other_cpus(len(groups) - 1)
-        with ProcessPoolExecutor(len(groups) - 1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_maps_worker, job.for_floors(g), cpu) for g, cpu in zip(groups[1:], cpus, strict=True)]
+        from mfmap.mapping.workers import start_worker, worker_cpus
+
+        context = multiprocessing.get_context("spawn")
+        cpus = context.Queue()
+        for cpu in worker_cpus(len(groups) - 1, offset=1):
+            cpus.put(cpu)
+        with ProcessPoolExecutor(len(groups) - 1, mp_context=context, initializer=start_worker,
+                                 initargs=(cpus,)) as pool:
+            futures = [pool.submit(_maps_worker, job.for_floors(g)) for g in groups[1:]]
             maps = _accumulate_scans(src, job.for_floors(groups[0]), bar)
             for future in futures:
                 part = future.result()
@@ -391,14 +397,9 @@ def _accumulate_scans(src: LogSource, job: _MapsJob, bar: StageProgress) -> MapA
     return maps
 
 
-def _maps_worker(job: _MapsJob, cpu: int | None) -> MapAccumulator:
-    import contextlib
-
+def _maps_worker(job: _MapsJob) -> MapAccumulator:
     from mfmap.ingest import open_log
 
-    if cpu is not None and hasattr(os, "sched_setaffinity"):
-        with contextlib.suppress(OSError):  # a CPU we may not use: stay where the parent was
-            os.sched_setaffinity(0, {cpu})
     with open_log(job.path, job.cfg.ingest) as src, NullProgress().stage("maps") as bar:
         return _accumulate_scans(src, job, bar)
 
@@ -413,17 +414,6 @@ def _floor_groups(used: dict[int, int], trajectory: Trajectory, workers: int) ->
         k = min(range(len(groups)), key=lambda j: (groups[j][0], j))
         groups[k] = (groups[k][0] + n, groups[k][1] | {floor_id})
     return [g for _, g in sorted(groups, key=lambda ng: (-ng[0], min(ng[1], default=0))) if g]
-
-
-def _other_cpus(n: int) -> list[int | None]:
-    """CPUs for n worker processes when the build is pinned to one CPU (`--threads 1`)."""
-    if not hasattr(os, "sched_getaffinity"):
-        return [None] * n
-    current = sorted(os.sched_getaffinity(0))
-    total = os.cpu_count() or 1
-    if len(current) != 1 or total < 2:
-        return [None] * n
-    return [(current[0] + k + 1) % total for k in range(n)]
 
 
 def _used_scans(seg: FloorSegmentation, trajectory: Trajectory, cabins: list[_Cabin],
@@ -509,42 +499,12 @@ def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i
         a, b = i - 1, i
     else:
         return points_base  # an isolated scan: no motion to interpolate
-    rel = _inverse_pose(poses[a]) @ poses[b]
-    span_ns = float(stamps[b] - stamps[a])  # at a gap after i, the motion into i carries on
-    frac = t_offset_ns.astype(np.float64) / span_ns
-    rotvec = _rotvec(rel[:3, :3])
-    angle = float(np.linalg.norm(rotvec))
-    out = points_base + frac[:, None] * rel[:3, 3]
-    if angle > 1e-12:
-        kx, ky, kz = rotvec / angle
-        skew = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
-        theta = frac * angle
-        if angle < 0.5:  # sin and 1 - cos by their series (error < 1e-8 here): cheaper
-            t2 = theta * theta
-            sin = theta * (1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)))
-            one_minus_cos = 0.5 * t2 * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)))
-        else:
-            sin, one_minus_cos = np.sin(theta), 1.0 - np.cos(theta)
-        out += sin[:, None] * (points_base @ skew.T) + one_minus_cos[:, None] * (points_base @ (skew @ skew).T)
-    return out
+    from mfmap.mapping.geometry import deskew, inverse, twist
 
-
-def _inverse_pose(pose: F64) -> F64:
-    out = np.eye(4)
-    out[:3, :3] = pose[:3, :3].T
-    out[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
-    return out
-
-
-def _rotvec(rot: F64) -> F64:
-    """Axis * angle of a rotation matrix (angles well below pi: consecutive scans)."""
-    cos = float(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))
-    angle = math.acos(cos)
-    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
-    sin = math.sin(angle)
-    if sin < 1e-9:
-        return 0.5 * axis  # small angle: the skew part is the rotation vector
-    return axis * (angle / (2.0 * sin))
+    # The motion to the next scan (or from the previous one, at a gap) as a constant twist.
+    span_s = (stamps[b] - stamps[a]) / 1e9
+    angular, linear = twist(inverse(poses[a]) @ poses[b], span_s)
+    return deskew(points_base, t_offset_ns.astype(np.float64) / 1e9, angular, linear)
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -39,7 +38,7 @@ from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
-from mfmap.mapping.workers import start_worker
+from mfmap.mapping.workers import start_worker, worker_cpus
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import (
     F32,
@@ -634,26 +633,11 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
                         mapper.warnings)
 
 
-def _worker_cpus(workers: int) -> list[int | None]:
-    """A CPU for each worker, so each runs one thread (TBB sizes its pool from the affinity).
-
-    A build pinned to one CPU (`--threads 1`) spreads its workers from that CPU over the
-    machine; otherwise they share out the CPUs the build may use.
-    """
-    if not hasattr(os, "sched_getaffinity"):
-        return [None] * workers
-    current = sorted(os.sched_getaffinity(0))
-    total = os.cpu_count() or 1
-    if len(current) == 1:
-        return [(current[0] + k) % total for k in range(workers)]
-    return [current[k % len(current)] for k in range(workers)]
-
-
 def _map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingConfig,
                   extrinsics: Extrinsics, planar: bool, chunks: list[_Chunk], path: Any,
                   ingest: IngestConfig, bar: Any) -> MappingResult:
     workers = min(cfg.workers, len(chunks))
-    cpus = _worker_cpus(workers)
+    cpus = worker_cpus(workers)
     odom, imu = source.odometry(), source.imu()
     jobs = [_ChunkJob(path, ingest, seg, cfg, extrinsics, odom, imu, planar, chunk)
             for chunk in chunks]
