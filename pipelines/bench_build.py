@@ -31,6 +31,7 @@ ABLATIONS: dict[str, dict[str, bool]] = {
     "no barometer factors": {"barometer_factors": False},
     "no elevator continuity": {"elevator_continuity": False},
     "no inter-floor registration": {"inter_floor_registration": False},
+    "no IMU ride height": {"imu_ride_height": False},
 }
 
 
