@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from mfmap.config import dump_config, load_config
+from mfmap.config import MfmapConfig, dump_config, load_config
 from mfmap.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,3 +58,10 @@ def test_missing_and_non_mapping_file(tmp_path: Path) -> None:
     path.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="expected a mapping"):
         load_config(path)
+
+
+def test_accurate_preset_loads_and_changes_only_mapping() -> None:
+    cfg = load_config(ROOT / "sample_configs" / "accurate.yaml")
+    default = MfmapConfig()
+    assert (cfg.mapping.voxel_size_m, cfg.mapping.map_voxel_size_m, cfg.mapping.scan_stride) == (0.25, 0.15, 3)
+    assert cfg.model_copy(update={"mapping": default.mapping}) == default
