@@ -23,6 +23,7 @@ import numpy as np
 
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.errors import MissingDataError, OutputError
+from mfmap.mapping.geometry import deskew, inverse, rotation_angle_rad, twist
 from mfmap.progress import NullProgress, Progress, StageProgress
 from mfmap.types import (
     F64,
@@ -456,8 +457,8 @@ def _scans_of(src: LogSource, planar: bool, trajectory: Trajectory, used: dict[i
 def _moved(last: F64 | None, pose: F64, cfg: MfmapConfig) -> bool:
     if last is None:
         return True
-    delta = np.linalg.inv(last) @ pose
-    turn_deg = math.degrees(math.acos(float(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    delta = inverse(last) @ pose
+    turn_deg = math.degrees(rotation_angle_rad(delta))
     return bool(
         np.linalg.norm(delta[:3, 3]) >= cfg.export.scan_min_motion_m
         or turn_deg >= cfg.export.scan_min_turn_deg
@@ -499,8 +500,6 @@ def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i
         a, b = i - 1, i
     else:
         return points_base  # an isolated scan: no motion to interpolate
-    from mfmap.mapping.geometry import deskew, inverse, twist
-
     # The motion to the next scan (or from the previous one, at a gap) as a constant twist.
     span_s = (stamps[b] - stamps[a]) / 1e9
     angular, linear = twist(inverse(poses[a]) @ poses[b], span_s)

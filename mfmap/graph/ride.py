@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from mfmap.types import F64, ImuSeries
 
@@ -53,13 +54,9 @@ class RideHeight:
 
 
 def _moving_mean(x: F64, n: int) -> F64:
-    if n <= 1 or len(x) < n:
-        return x.copy()
-    csum = np.concatenate([[0.0], np.cumsum(x)])
-    out = (csum[n:] - csum[:-n]) / n
-    # Centre the window; edges repeat the nearest full window.
-    pad_lo = (n - 1) // 2
-    return np.concatenate([np.full(pad_lo, out[0]), out, np.full(len(x) - len(out) - pad_lo, out[-1])])
+    """Centred mean over n samples (edges padded with the nearest sample), as floors/motion.py."""
+    # origin -1: for an even n the window reaches one sample further ahead than behind.
+    return np.asarray(ndimage.uniform_filter1d(x, size=max(n, 1), mode="nearest", origin=-1 if n % 2 == 0 else 0))
 
 
 def ride_height(

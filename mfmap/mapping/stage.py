@@ -519,23 +519,7 @@ class _Mapper:
                                    for ns, pose in self._pending)
             self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
             self._pending.clear()
-        stats = {
-            "scans": float(len(self.scan_poses)),
-            "registered": float(self.registered),
-            "registration_failures": float(self.matcher.failures),
-            "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
-            "keyframes": float(len(self.keyframes)),
-            "odometry_edges": float(sum(e.kind == "odometry" for e in self.edges)),
-            "loop_edges": float(sum(e.kind == "loop" for e in self.edges)),
-            "loop_candidates": float(self.loops.stats.candidates),
-            "loop_rejected_fitness": float(self.loops.stats.rejected_fitness),
-            "loop_rejected_ambiguous": float(self.loops.stats.rejected_ambiguous),
-            "loop_rejected_degenerate": float(self.loops.stats.rejected_degenerate),
-            "loop_rejected_implausible": float(self.loops.stats.rejected_implausible),
-            "max_local_map_points": float(self.max_map_points),
-            "in_cabin_scans": float(self.in_cabin_scans),
-            "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
-        }
+        stats = _stats(self.counters(), len(self.scan_poses), self.keyframes, self.edges, self.loops)
         if self.matcher.failures:
             self.warnings.append(
                 f"{self.matcher.failures} scans could not be registered (motion prior used)")
@@ -550,6 +534,27 @@ def _loop_edges(loops: LoopCloser, kf: Keyframe, planar: bool) -> list[PoseEdge]
                           e.information, e.kind, e.fitness) for e in edges]
     return edges
 
+
+def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe], edges: list[PoseEdge],
+           loops: LoopCloser) -> dict[str, float]:
+    """The stage's figures for the report, from one mapper's counters or the chunks' summed."""
+    return {
+        "scans": float(scans),
+        "registered": counters.get("registered", 0.0),
+        "registration_failures": counters.get("registration_failures", 0.0),
+        "gyro_overruled": counters.get("gyro_overruled", 0.0),
+        "keyframes": float(len(keyframes)),
+        "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
+        "loop_edges": float(sum(e.kind == "loop" for e in edges)),
+        "loop_candidates": float(loops.stats.candidates),
+        "loop_rejected_fitness": float(loops.stats.rejected_fitness),
+        "loop_rejected_ambiguous": float(loops.stats.rejected_ambiguous),
+        "loop_rejected_degenerate": float(loops.stats.rejected_degenerate),
+        "loop_rejected_implausible": float(loops.stats.rejected_implausible),
+        "max_local_map_points": counters.get("max_local_map_points", 0.0),
+        "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
+        "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
+    }
 
 # ----- parallel mapping -------------------------------------------------------------------------
 #
@@ -678,17 +683,14 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
             frame = yaw_pose(yaw_rad(held), np.array([held[0, 3], held[1, 3],
                                                       0.0 if known else held[2, 3]]))
         offset = len(keyframes)
-        if not part.keyframes and keyframes:
-            # A chunk without a keyframe: its scans hang on the last keyframe before it.
-            last = keyframes[-1]
-            scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ frame @ pose)
-                              for ns, pose in part.pending)
         for kf in part.keyframes:
             keyframes.append(replace(kf, id=kf.id + offset, pose=frame @ kf.pose))
         for e in part.edges:
             odometry.setdefault(e.j + offset, []).append(replace(e, i=e.i + offset, j=e.j + offset))
         scan_poses.extend(replace(sp, keyframe=sp.keyframe + offset) for sp in part.scan_poses)
-        if part.keyframes and part.pending:
+        if part.pending and keyframes:
+            # Scans of a visit that ended before its first keyframe hang on the last keyframe
+            # (the chunk's own, or the one before it when the chunk has none).
             last = keyframes[-1]
             scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ frame @ pose)
                               for ns, pose in part.pending)
@@ -706,24 +708,8 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
     if not keyframes:
         warnings.append("no keyframe could be made: no usable lidar scans")
     failures = counters.get("registration_failures", 0.0)
-    stats = {
-        "scans": float(len(scan_poses)),
-        "registered": counters.get("registered", 0.0),
-        "registration_failures": failures,
-        "gyro_overruled": counters.get("gyro_overruled", 0.0),
-        "keyframes": float(len(keyframes)),
-        "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
-        "loop_edges": float(sum(e.kind == "loop" for e in edges)),
-        "loop_candidates": float(loops.stats.candidates),
-        "loop_rejected_fitness": float(loops.stats.rejected_fitness),
-        "loop_rejected_ambiguous": float(loops.stats.rejected_ambiguous),
-        "loop_rejected_degenerate": float(loops.stats.rejected_degenerate),
-        "loop_rejected_implausible": float(loops.stats.rejected_implausible),
-        "max_local_map_points": counters.get("max_local_map_points", 0.0),
-        "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
-        "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
-        "chunks": float(len(parts)),
-    }
+    stats = _stats(counters, len(scan_poses), keyframes, edges, loops)
+    stats["chunks"] = float(len(parts))
     warnings = [w for w in warnings if "scans could not be registered" not in w]
     if failures:
         warnings.append(f"{int(failures)} scans could not be registered (motion prior used)")
