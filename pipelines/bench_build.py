@@ -108,12 +108,14 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
 
 
 def grid_scores(out: Path, sim: Path) -> str:
-    """Occupied cells of each floor grid vs the ground-truth walls (as tests/export scores them)."""
+    """Occupied cells of each floor grid vs the ground-truth walls (as tests/export scores them;
+    recall against the walls visible from the true path)."""
     from mfmap.export.score import score_build
 
     lines = []
     for tol in (1, 2):
-        for s in score_build(out, sim / "gt_cloud.ply", sim / "gt_floors.json", tolerance_cells=tol):
+        for s in score_build(out, sim / "gt_cloud.ply", sim / "gt_floors.json", tolerance_cells=tol,
+                             gt_trajectory=sim / "gt_trajectory.tum"):
             lines.append(f"grid.floor{s.floor_id}.tol{tol}_cells: precision {s.precision:.3f} recall {s.recall:.3f}")
     return "  " + "\n  ".join(lines)
 
