@@ -7,6 +7,7 @@ folder that looks complete; an existing OUT is replaced only with `force`.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -15,6 +16,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -82,7 +84,6 @@ def build(
     """Build the building map of `log` into the folder `out`."""
     from mfmap.export.write import write_outputs
     from mfmap.ingest import open_log
-    from mfmap.mapping import map_floors
 
     started = time.perf_counter()
     progress = progress or NullProgress()
@@ -92,7 +93,7 @@ def build(
     warnings: list[str] = []
     partial = _make_partial(out)
     try:
-        with open_log(log, cfg.ingest) as src:
+        with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
             warnings += [f"ingest: {w}" for w in src.warnings]
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
@@ -104,8 +105,18 @@ def build(
             warnings += [f"floors: {w}" for w in seg.warnings]
             timings["floors"] = time.perf_counter() - t0
 
+            pool = None
+            if len(seg.floors) > 1 and max(cfg.mapping.workers, cfg.export.workers) > 1:
+                # Several floors: mapping (runs between rides) and the maps (floor groups) run in
+                # processes. One pool for both, started now so its workers warm up meanwhile.
+                from mfmap.mapping.workers import worker_pool
+
+                pool = workers.enter_context(
+                    worker_pool(max(cfg.mapping.workers, cfg.export.workers)))
+            from mfmap.mapping import map_floors
+
             t0 = time.perf_counter()
-            mapping = map_floors(src, seg, cfg.mapping, extrinsics, progress)
+            mapping = map_floors(src, seg, cfg.mapping, extrinsics, progress, pool)
             warnings += [f"mapping: {w}" for w in mapping.warnings]
             timings["mapping"] = time.perf_counter() - t0
             if not mapping.keyframes:
@@ -125,7 +136,7 @@ def build(
             timings["graph"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress)
+            trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress, pool)
             timings["accumulate"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -311,8 +322,13 @@ def accumulate(
     extrinsics: Extrinsics,
     cfg: MfmapConfig,
     progress: Progress,
+    pool: Executor | None = None,
 ) -> tuple[Trajectory, MapAccumulator]:
-    """Each floor's cloud and grid from every scan at its optimised pose (or the keyframes)."""
+    """Each floor's cloud and grid from every scan at its optimised pose (or the keyframes).
+
+    With `cfg.export.workers` > 1 the floors are shared out over processes: those of `pool` when
+    given (started by `mapping.workers.worker_pool`), else a pool of their own.
+    """
     from mfmap.export.config import CloudSource
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import optimised_trajectory
@@ -329,29 +345,22 @@ def accumulate(
     job = _MapsJob(src.path, cfg, Role.LIDAR not in src.roles, trajectory, used,
                    _distinct_cabins(cabins), extrinsics, dict(graph.floor_z_m))
     groups = _floor_groups(used, trajectory, cfg.export.workers)
-    with progress.stage("maps", total=len(used)) as bar:
+    with progress.stage("maps", total=len(used)) as bar, contextlib.ExitStack() as stack:
         if len(groups) < 2:
             return trajectory, _accumulate_scans(src, job, bar)
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         # One floor group per process (a floor's cloud and grid never depend on another floor,
-        # so the maps are those of one pass). This process takes the first group itself.
-        # spawn: the parent holds open3d's and GTSAM's thread pools, which fork does not copy.
-        from mfmap.mapping.workers import start_worker, worker_cpus
+        # so the maps are those of one pass).
+        if pool is None:
+            from mfmap.mapping.workers import worker_pool
 
-        context = multiprocessing.get_context("spawn")
-        cpus = context.Queue()
-        for cpu in worker_cpus(len(groups) - 1, offset=1):
-            cpus.put(cpu)
-        with ProcessPoolExecutor(len(groups) - 1, mp_context=context, initializer=start_worker,
-                                 initargs=(cpus,)) as pool:
-            futures = [pool.submit(_maps_worker, job.for_floors(g)) for g in groups[1:]]
-            maps = _accumulate_scans(src, job.for_floors(groups[0]), bar)
-            for future in futures:
-                part = future.result()
-                bar.advance(part.scans)
-                maps.merge(part)
+            pool = stack.enter_context(worker_pool(len(groups), warm=False))
+        futures = [pool.submit(_maps_worker, job.for_floors(g)) for g in groups]
+        maps = futures[0].result()
+        bar.advance(maps.scans)
+        for future in futures[1:]:
+            part = future.result()
+            bar.advance(part.scans)
+            maps.merge(part)
     return trajectory, maps
 
 

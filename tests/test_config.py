@@ -60,8 +60,8 @@ def test_missing_and_non_mapping_file(tmp_path: Path) -> None:
         load_config(path)
 
 
-def test_accurate_preset_loads_and_changes_only_mapping() -> None:
-    cfg = load_config(ROOT / "sample_configs" / "accurate.yaml")
+def test_fast_preset_loads_and_changes_only_mapping() -> None:
+    cfg = load_config(ROOT / "sample_configs" / "fast.yaml")
     default = MfmapConfig()
-    assert (cfg.mapping.voxel_size_m, cfg.mapping.map_voxel_size_m, cfg.mapping.scan_stride) == (0.25, 0.15, 3)
+    assert (cfg.mapping.voxel_size_m, cfg.mapping.map_voxel_size_m, cfg.mapping.scan_stride) == (0.4, 0.2, 2)
     assert cfg.model_copy(update={"mapping": default.mapping}) == default

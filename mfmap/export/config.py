@@ -54,10 +54,10 @@ class ExportConfig(BaseModel):
         "or from the keyframe clouds only ('keyframes', faster, sparser)",
     )
     workers: int = Field(
-        1,
+        2,
         ge=1,
         description="processes reading the log a second time for the clouds and grids, one group "
-        "of floors each (the maps are the same for any number; a worker costs ~1.5 s to start, "
-        "so 2 only pays on a quiet machine)",
+        "of floors each (the maps are the same for any number; the build's mapping workers are "
+        "reused, so they cost no second start-up)",
     )
     html_report: bool = Field(True, description="write report.html")

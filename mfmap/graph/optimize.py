@@ -199,6 +199,30 @@ class _Builder:
         if links:
             self.links.append((i, j))
 
+    def world_dz(self, kind: str, i: int, j: int, dz_m: float, sigma_m: float,
+                 robust: bool = False) -> None:
+        """z_j - z_i = dz_m in the world frame, whatever the two poses' tilt.
+
+        A BetweenFactorPose3 with only z tight measures z in pose i's frame: a tilt of a
+        fraction of a degree there turns the horizontal run between the poses (several metres
+        on a stair walk) into centimetres of height.
+        """
+        model = gtsam.noiseModel.Isotropic.Sigma(1, sigma_m)
+        if robust:
+            model = _robust(self.config, model)
+        # Pose3 retraction moves the translation by R v (first order), not by the rotation part.
+        zero = np.zeros(3)
+
+        def error(this: Any, values: Any, jacobians: list[np.ndarray] | None) -> np.ndarray:
+            a = values.atPose3(this.keys()[0])
+            b = values.atPose3(this.keys()[1])
+            if jacobians is not None:
+                jacobians[0] = np.concatenate([zero, -a.rotation().matrix()[2]]).reshape(1, 6)
+                jacobians[1] = np.concatenate([zero, b.rotation().matrix()[2]]).reshape(1, 6)
+            return np.array([b.z() - a.z() - dz_m])
+
+        self.add(kind, gtsam.CustomFactor(model, [X(i), X(j)], error), np.eye(1) / sigma_m)
+
     def reject(self, kind: str) -> None:
         self.stats.setdefault(kind, FactorStats()).rejected += 1
 
@@ -490,17 +514,11 @@ def _add_elevator(
         entry["keyframes"] = [a.id, b.id]
         measured = _relative_level(initial[a.id], initial[b.id], tr.height_change_m)
         if tr.kind == TransitionKind.ELEVATOR and config.imu_ride_height:
-            _add_imu_ride(builder, a, b, initial, tr.start_ns, tr.end_ns, tr.height_change_m, imu, config, entry)
+            _add_imu_ride(builder, a, b, tr.start_ns, tr.end_ns, tr.height_change_m, imu, config, entry)
         else:
             entry["imu"] = "off" if tr.kind == TransitionKind.ELEVATOR else "not an elevator ride"
         if config.transition_height:
-            builder.between(
-                "transition_z", a.id, b.id, measured,
-                [FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA,
-                 config.transition_sigma_z_m],
-                robust=False,
-                links=False,
-            )
+            builder.world_dz("transition_z", a.id, b.id, tr.height_change_m, config.transition_sigma_z_m)
         if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
@@ -518,7 +536,6 @@ def _add_imu_ride(
     builder: _Builder,
     a: Keyframe,
     b: Keyframe,
-    initial: dict[int, F64],
     start_ns: int,
     end_ns: int,
     baro_dz_m: float,
@@ -543,12 +560,7 @@ def _add_imu_ride(
         entry["imu"] = f"rejected: differs from the barometer by more than {config.imu_ride_gate_m} m"
         builder.reject("imu_ride")
         return
-    measured = _relative_level(initial[a.id], initial[b.id], ride.height_change_m)
-    builder.between(
-        "imu_ride", a.id, b.id, measured,
-        [FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA, ride.sigma_m],
-        links=False,
-    )
+    builder.world_dz("imu_ride", a.id, b.id, ride.height_change_m, ride.sigma_m, robust=True)
 
 
 def _add_height_ties(

@@ -9,11 +9,11 @@ are mapped in parallel processes and chained afterwards (see "parallel mapping" 
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import multiprocessing
 import time
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -38,7 +38,7 @@ from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
-from mfmap.mapping.workers import start_worker, worker_cpus
+from mfmap.mapping.workers import worker_pool
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import (
     F32,
@@ -223,13 +223,15 @@ def map_floors(
     cfg: MappingConfig,
     extrinsics: Extrinsics,
     progress: Progress | None = None,
+    pool: Executor | None = None,
 ) -> MappingResult:
     """Per-floor lidar odometry, keyframes and verified same-floor loop closures.
 
     Keyframe poses are initial guesses in the world frame (the first visit starts at identity);
     every lidar scan gets a ScanPose. Uses 3D clouds, or LaserScans when the log has no 3D lidar.
     With `cfg.workers` > 1 and a log that can be re-opened, the runs of visits between elevator
-    rides are mapped in parallel processes (see `_map_parallel`).
+    rides are mapped in parallel processes (see `_map_parallel`): in `pool` when given (its
+    processes must have been started by `workers.worker_pool`), else in a pool of their own.
     """
     progress = progress or NullProgress()
     roles = source.roles
@@ -243,7 +245,8 @@ def map_floors(
     ingest = getattr(source, "config", None)
     with progress.stage("mapping", total=total) as bar:
         if cfg.workers > 1 and len(chunks) > 1 and path is not None and ingest is not None:
-            result = _map_parallel(source, seg, cfg, extrinsics, planar, chunks, path, ingest, bar)
+            result = _map_parallel(source, seg, cfg, extrinsics, planar, chunks, path, ingest, bar,
+                                   pool)
         else:
             mapper = _Mapper(cfg, seg, extrinsics, MotionModel(
                 cfg.motion_prior, source.odometry(), source.imu(), extrinsics), planar)
@@ -330,7 +333,8 @@ class _Mapper:
             self._start_visit(segment, stamp_ns)
         state.scan_index += 1
         has_times = t_offset_ns is not None and len(t_offset_ns) == len(xyz) and len(xyz) > 0
-        if state.scan_index % self.cfg.scan_stride != 0 and state.stamp_ns is not None:
+        stride = self.cfg.scan_stride_2d if self.planar else self.cfg.scan_stride
+        if state.scan_index % stride != 0 and state.stamp_ns is not None:
             delta = self._predict(stamp_ns)
             dt = (stamp_ns - state.stamp_ns) / 1e9
             predicted = state.pose @ delta
@@ -431,8 +435,10 @@ class _Mapper:
         previous = state.keyframe
         if previous is not None and (previous.visit == kf.visit or state.link_previous):
             measured = inverse(previous.pose) @ kf.pose
-            self.edges.append(PoseEdge(previous.id, kf.id, measured,
-                                       _odometry_information(self.cfg, measured), "odometry",
+            information = _odometry_information(self.cfg, measured)
+            if previous.visit != kf.visit:  # across a stair walk
+                information[5, 5] = min(information[5, 5], self.cfg.stairs_sigma_z_m**-2)
+            self.edges.append(PoseEdge(previous.id, kf.id, measured, information, "odometry",
                                        fitness))
         self.keyframes.append(kf)
         state.keyframe = kf
@@ -640,20 +646,14 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
 
 def _map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingConfig,
                   extrinsics: Extrinsics, planar: bool, chunks: list[_Chunk], path: Any,
-                  ingest: IngestConfig, bar: Any) -> MappingResult:
-    workers = min(cfg.workers, len(chunks))
-    cpus = worker_cpus(workers)
+                  ingest: IngestConfig, bar: Any, pool: Executor | None) -> MappingResult:
     odom, imu = source.odometry(), source.imu()
     jobs = [_ChunkJob(path, ingest, seg, cfg, extrinsics, odom, imu, planar, chunk)
             for chunk in chunks]
-    # spawn: the parent has open3d's and GTSAM's thread pools loaded, which fork does not copy.
-    context = multiprocessing.get_context("spawn")
-    queue = context.Queue()
-    for cpu in cpus:
-        queue.put(cpu)
     parts: list[_ChunkResult] = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=start_worker,
-                             initargs=(queue,)) as pool:
+    with contextlib.ExitStack() as stack:
+        if pool is None:
+            pool = stack.enter_context(worker_pool(min(cfg.workers, len(chunks)), warm=False))
         for part in pool.map(_map_chunk, jobs):
             parts.append(part)
             bar.advance(part.scans)

@@ -1,14 +1,16 @@
-"""Start-up of the parallel mapping workers, kept free of heavy imports.
+"""The build's worker processes, kept free of heavy imports.
 
-It must run before the worker imports open3d: TBB sizes its thread pool from the CPU affinity
-and OpenMP from OMP_NUM_THREADS when the library loads, and one thread per worker is what makes
-every run give the same bits.
+`start_worker` must run before a worker imports open3d: TBB sizes its thread pool from the CPU
+affinity and OpenMP from OMP_NUM_THREADS when the library loads, and one thread per worker is
+what makes every run give the same bits.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Iterator
+from concurrent.futures import Executor
 from typing import Any
 
 
@@ -35,3 +37,33 @@ def worker_cpus(workers: int, offset: int = 0) -> list[int | None]:
     if len(current) == 1:
         return [(current[0] + k + offset) % total for k in range(workers)]
     return [current[(k + offset) % len(current)] for k in range(workers)]
+
+
+def warm_up() -> None:
+    """Import what the jobs need (open3d, the mapper, the readers) before the first job comes."""
+    import mfmap.export.mapdata
+    import mfmap.ingest
+    import mfmap.mapping.stage  # noqa: F401
+
+
+@contextlib.contextmanager
+def worker_pool(workers: int, warm: bool = True) -> Iterator[Executor]:
+    """`workers` pinned processes, started now and warmed up while the caller goes on.
+
+    One pool serves every parallel stage of a build (mapping, then the maps' second pass), so
+    each worker pays its start-up (~1 s: a spawned interpreter importing open3d) once.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # spawn: the parent has open3d's and GTSAM's thread pools loaded, which fork does not copy.
+    context = multiprocessing.get_context("spawn")
+    cpus = context.Queue()
+    for cpu in worker_cpus(workers):
+        cpus.put(cpu)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=start_worker,
+                             initargs=(cpus,)) as pool:
+        if warm:
+            for _ in range(workers):  # submitted together, so each goes to a new process
+                pool.submit(warm_up)
+        yield pool

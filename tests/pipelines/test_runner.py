@@ -170,13 +170,12 @@ def test_worse_config_fails_naming_the_metric(tmp_path: Path) -> None:
     (tiny,) = run.results
     assert tiny.verdict is Verdict.REGRESSED
     regressed = [c.metric for c in tiny.regressions]
-    inter = [m for m in regressed if m.startswith("trajectory.floor1.")]
-    assert inter == ["trajectory.floor1.ape_rmse_m"], regressed
-    # The start floor, which the switches cannot touch, keeps its checkpoint accuracy.
-    assert "points.floor0.rmse_m" not in regressed
+    assert "points.floor1.rmse_m" in regressed, regressed
+    # The start floor, which the switches cannot touch, keeps its accuracy.
+    assert not [m for m in regressed if ".floor0." in m], regressed
     summary = (tmp_path / "out" / "summary.md").read_text()
     row = next(line for line in summary.splitlines() if line.startswith("| tiny |"))
     assert "| regressed |" in row and f"| {len(regressed)} |" in row
     failure = ET.parse(tmp_path / "out" / "junit.xml").getroot().find("testsuite/testcase/failure")
     assert failure is not None
-    assert all(m in (failure.get("message") or "") for m in inter)
+    assert all(m in (failure.get("message") or "") for m in regressed)
