@@ -8,6 +8,7 @@ whose pose estimates have drifted apart; the column shift of the best match give
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,8 +116,11 @@ class LoopCheck:
 class LoopCloser:
     """Keeps the keyframes of every floor and proposes verified loop edges, same floor only."""
 
-    def __init__(self, cfg: MappingConfig) -> None:
+    def __init__(self, cfg: MappingConfig, group_of: Callable[[Keyframe], int] | None = None) -> None:
+        """`group_of`: only keyframes of another group are candidates (the parallel chunks' merge,
+        whose workers searched the loops within each chunk)."""
         self.cfg = cfg
+        self.group_of = group_of
         self.stats = LoopStats()
         self._keyframes: dict[int, Keyframe] = {}
         self._desc: dict[int, F64] = {}
@@ -179,6 +183,7 @@ class LoopCloser:
             other for other in self._keyframes.values()
             if other.floor_id == kf.floor_id  # never propose a loop between floors
             and (other.visit != kf.visit or kf.id - other.id >= self.cfg.loop_min_separation)
+            and (self.group_of is None or self.group_of(other) != self.group_of(kf))
         ]
         if not same_floor:
             return []

@@ -262,9 +262,8 @@ def map_floors(
 
 class _Mapper:
     def __init__(self, cfg: MappingConfig, seg: FloorSegmentation, extrinsics: Extrinsics,
-                 motion: MotionModel, planar: bool, defer_loops: bool = False) -> None:
+                 motion: MotionModel, planar: bool) -> None:
         self.cfg = cfg
-        self.defer_loops = defer_loops  # a parallel chunk: loops are searched after the merge
         self.seg = seg
         self.extrinsics = extrinsics
         self.motion = motion
@@ -456,8 +455,7 @@ class _Mapper:
         if self._pending:
             self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
             self._pending.clear()
-        if not self.defer_loops:
-            self.edges.extend(_loop_edges(self.loops, kf, self.planar))
+        self.edges.extend(_loop_edges(self.loops, kf, self.planar))
 
     def _start_visit(self, segment: Segment, stamp_ns: int) -> None:
         """A new floor visit: after a ride the map restarts at the held pose, z from the floor."""
@@ -522,6 +520,7 @@ class _Mapper:
             "in_cabin_scans": float(self.in_cabin_scans),
             "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
             "max_local_map_points": float(self.max_map_points),
+            **_loop_counters(self.loops),
         }
 
     def result(self) -> MappingResult:
@@ -534,7 +533,7 @@ class _Mapper:
                                    for ns, pose in self._pending)
             self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
             self._pending.clear()
-        stats = _stats(self.counters(), len(self.scan_poses), self.keyframes, self.edges, self.loops)
+        stats = _stats(self.counters(), len(self.scan_poses), self.keyframes, self.edges)
         if self.matcher.failures:
             self.warnings.append(
                 f"{self.matcher.failures} scans could not be registered (motion prior used)")
@@ -550,8 +549,19 @@ def _loop_edges(loops: LoopCloser, kf: Keyframe, planar: bool) -> list[PoseEdge]
     return edges
 
 
-def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe], edges: list[PoseEdge],
-           loops: LoopCloser) -> dict[str, float]:
+# The loop search's counters in the report: name -> LoopStats attribute.
+_LOOP_COUNTERS = {"loop_candidates": "candidates", "loop_rejected_fitness": "rejected_fitness",
+                  "loop_rejected_ambiguous": "rejected_ambiguous",
+                  "loop_rejected_degenerate": "rejected_degenerate",
+                  "loop_rejected_implausible": "rejected_implausible"}
+
+
+def _loop_counters(loops: LoopCloser) -> dict[str, float]:
+    return {name: float(getattr(loops.stats, attr)) for name, attr in _LOOP_COUNTERS.items()}
+
+
+def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
+           edges: list[PoseEdge]) -> dict[str, float]:
     """The stage's figures for the report, from one mapper's counters or the chunks' summed."""
     return {
         "scans": float(scans),
@@ -561,11 +571,7 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe], ed
         "keyframes": float(len(keyframes)),
         "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),
-        "loop_candidates": float(loops.stats.candidates),
-        "loop_rejected_fitness": float(loops.stats.rejected_fitness),
-        "loop_rejected_ambiguous": float(loops.stats.rejected_ambiguous),
-        "loop_rejected_degenerate": float(loops.stats.rejected_degenerate),
-        "loop_rejected_implausible": float(loops.stats.rejected_implausible),
+        **{name: counters.get(name, 0.0) for name in _LOOP_COUNTERS},
         "max_local_map_points": counters.get("max_local_map_points", 0.0),
         "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
         "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
@@ -638,7 +644,7 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
     from mfmap.ingest import open_log
 
     motion = MotionModel(job.cfg.motion_prior, job.odom, job.imu, job.extrinsics)
-    mapper = _Mapper(job.cfg, job.seg, job.extrinsics, motion, job.planar, defer_loops=True)
+    mapper = _Mapper(job.cfg, job.seg, job.extrinsics, motion, job.planar)
     chunk = job.chunk
     if chunk.first_visit > 0:
         mapper.state.visit = chunk.first_visit - 1  # so its first scan restarts after the ride
@@ -671,16 +677,21 @@ def _map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingCon
 
 def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation,
            planar: bool) -> MappingResult:
-    """Chain the chunks into one frame, renumber keyframes, search loops in keyframe order."""
+    """Chain the chunks into one frame, renumber keyframes, search loops across chunks.
+
+    Each worker searched the loops within its chunk; what is left are the revisits of a floor
+    from another chunk, searched here in keyframe order against the other chunks' keyframes.
+    """
     timeline = Timeline(seg)
     elevation = {f.id: f.elevation_m for f in seg.floors}
     keyframes: list[Keyframe] = []
-    odometry: dict[int, list[PoseEdge]] = {}
+    chunk_edges: dict[int, list[PoseEdge]] = {}  # odometry and loops within a chunk, by j
+    chunk_of_visit: dict[int, int] = {}
     scan_poses: list[ScanPose] = []
     counters: dict[str, float] = {}
     warnings: list[str] = []
     held = np.eye(4)
-    for part in parts:
+    for index, part in enumerate(parts):
         if part.scans == 0:
             continue  # nothing mapped: the held pose carries on to the next chunk
         frame = np.eye(4)
@@ -694,8 +705,9 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
         offset = len(keyframes)
         for kf in part.keyframes:
             keyframes.append(replace(kf, id=kf.id + offset, pose=frame @ kf.pose))
+            chunk_of_visit[kf.visit] = index
         for e in part.edges:
-            odometry.setdefault(e.j + offset, []).append(replace(e, i=e.i + offset, j=e.j + offset))
+            chunk_edges.setdefault(e.j + offset, []).append(replace(e, i=e.i + offset, j=e.j + offset))
         scan_poses.extend(replace(sp, keyframe=sp.keyframe + offset) for sp in part.scan_poses)
         if part.pending and keyframes:
             # Scans of a visit that ended before its first keyframe hang on the last keyframe
@@ -709,15 +721,17 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
             counters[name] = merge(counters.get(name, 0.0), value)
         warnings += [w for w in part.warnings if w not in warnings]
     scan_poses.sort(key=lambda sp: sp.stamp_ns)
-    loops = LoopCloser(cfg)
+    loops = LoopCloser(cfg, group_of=lambda kf: chunk_of_visit[kf.visit])
     edges: list[PoseEdge] = []
     for kf in keyframes:
-        edges += odometry.get(kf.id, [])
+        edges += chunk_edges.get(kf.id, [])
         edges += _loop_edges(loops, kf, planar)
+    for name, value in _loop_counters(loops).items():
+        counters[name] = counters.get(name, 0.0) + value
     if not keyframes:
         warnings.append("no keyframe could be made: no usable lidar scans")
     failures = counters.get("registration_failures", 0.0)
-    stats = _stats(counters, len(scan_poses), keyframes, edges, loops)
+    stats = _stats(counters, len(scan_poses), keyframes, edges)
     stats["chunks"] = float(len(parts))
     warnings = [w for w in warnings if "scans could not be registered" not in w]
     if failures:
