@@ -512,7 +512,6 @@ def _add_elevator(
             continue
         a, b = ends
         entry["keyframes"] = [a.id, b.id]
-        measured = _relative_level(initial[a.id], initial[b.id], tr.height_change_m)
         if tr.kind == TransitionKind.ELEVATOR and config.imu_ride_height:
             _add_imu_ride(builder, a, b, tr.start_ns, tr.end_ns, tr.height_change_m, imu, config, entry)
         else:
@@ -522,6 +521,7 @@ def _add_elevator(
         if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
+            measured = _relative_level(initial[a.id], initial[b.id], tr.height_change_m)
             # Cauchy: when the ride's ends disagree with the floors' registration by many sigma
             # (a keyframe at the cabin door with a wrong pose), the factor lets go instead of
             # bending the floor with a constant (Huber) pull.

@@ -64,6 +64,7 @@ class MappingConfig(BaseModel):
     odom_sigma_deg: float = Field(0.15, description="odometry edge rotation noise (deg)")
     stairs_sigma_z_m: float = Field(
         0.05,
+        gt=0,
         description="height noise of the odometry edge across a stair walk (every scan on the "
         "stairs is registered; the climb came out within 1.5-3 cm of the truth on the stairs "
         "scenario): it and the barometer's height change across the walk set the floors' heights",

@@ -23,20 +23,19 @@ def start_worker(cpus: Any) -> None:
             os.sched_setaffinity(0, {cpu})
 
 
-def worker_cpus(workers: int, offset: int = 0) -> list[int | None]:
+def worker_cpus(workers: int) -> list[int | None]:
     """A CPU for each worker, so each runs one thread (TBB sizes its pool from the affinity).
 
     A build pinned to one CPU (`--threads 1`) spreads its workers from that CPU over the
-    machine; otherwise they share out the CPUs the build may use. `offset` skips CPUs for work
-    the parent process does itself.
+    machine; otherwise they share out the CPUs the build may use.
     """
     if not hasattr(os, "sched_getaffinity"):
         return [None] * workers
     current = sorted(os.sched_getaffinity(0))
     total = os.cpu_count() or 1
     if len(current) == 1:
-        return [(current[0] + k + offset) % total for k in range(workers)]
-    return [current[(k + offset) % len(current)] for k in range(workers)]
+        return [(current[0] + k) % total for k in range(workers)]
+    return [current[k % len(current)] for k in range(workers)]
 
 
 def warm_up() -> None:
