@@ -55,6 +55,11 @@ class MappingConfig(BaseModel):
         description="with an IMU, keep the gyro's rotation for a scan whose registration turns "
         "its heading more than this from the gyro's (0: off)",
     )
+    icp_gyro_low_fitness: float = Field(
+        0.9, ge=0.0, le=1.0,
+        description="below this registration fitness (a scan seeing much new structure) the "
+        "gyro disagreement allowed is halved",
+    )
     local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
     local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")
     keyframe_distance_m: float = Field(1.0, description="new keyframe after this much travel")

@@ -114,21 +114,39 @@ class PoseInterpolator:
 
 
 def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
-              still_m_s: float = 0.005, still_rad_s: float = 0.005, min_samples: int = 50) -> F64:
-    """Gyro bias: the median rate while wheel odometry says the robot stands still (else zero).
+              still_m_s: float = 0.005, still_rad_s: float = 0.005, min_samples: int = 50,
+              window_s: float = 120.0, step_s: float = 5.0) -> F64:
+    """Gyro bias at every sample, (n, 3): the median rate while wheel odometry says the robot
+    stands still (zero-velocity updates), over the still samples within window_s / 2 of it.
 
     A 0.1 deg/s bias is 1 deg after a 10 s turn in an elevator cabin, where lidar cannot help.
+    A MEMS gyro's bias also wanders: one median over a whole log was 4e-4 rad/s off at some
+    rides, 0.3 deg over the cabin's 180 deg turn; the still robot in the cabin during the ride
+    measures it right there. Times with no still samples near them take the nearest estimate;
+    without enough still samples in the log the bias is zero.
     """
-    if odom is None or len(odom) < 2:
-        return np.zeros(3)
+    n = len(stamp_ns)
+    if odom is None or len(odom) < 2 or n == 0:
+        return np.zeros((n, 3))
     speed = np.linalg.norm(odom.linear_m_s, axis=1)
     turn = np.linalg.norm(odom.angular_rad_s, axis=1)
     still = ((speed < still_m_s) & (turn < still_rad_s)).astype(np.float64)
+    t_s = (stamp_ns - stamp_ns[0]).astype(np.float64) / 1e9
     at_imu = np.interp(stamp_ns.astype(np.float64), odom.stamp_ns.astype(np.float64), still)
     mask = at_imu > 0.999
     if mask.sum() < min_samples:
-        return np.zeros(3)
-    return np.median(gyro_rad_s[mask], axis=0)
+        return np.zeros((n, 3))
+    still_t = t_s[mask]
+    still_rate = gyro_rad_s[mask]
+    grid = np.arange(0.0, t_s[-1] + step_s, step_s)
+    lo = np.searchsorted(still_t, grid - window_s / 2.0, side="left")
+    hi = np.searchsorted(still_t, grid + window_s / 2.0, side="right")
+    ok = (hi - lo) >= min_samples
+    if not ok.any():
+        return np.repeat(np.median(still_rate, axis=0)[None, :], n, axis=0)
+    # The median: the first and last samples of a stand-still can already turn.
+    medians = np.array([np.median(still_rate[a:b], axis=0) for a, b in zip(lo[ok], hi[ok], strict=True)])
+    return np.column_stack([np.interp(t_s, grid[ok], medians[:, a]) for a in range(3)])
 
 
 class GyroIntegrator:

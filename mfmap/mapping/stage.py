@@ -282,7 +282,8 @@ class _Mapper:
         else:
             self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
                                        cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
-                                       max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg)
+                                       max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
+                                       low_fitness=cfg.icp_gyro_low_fitness)
         self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
         # Stair walks, widened: the floors stage places their ends to within a second or two.
         margin_ns = 3_000_000_000

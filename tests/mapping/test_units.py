@@ -119,5 +119,62 @@ def test_gyro_overrules_a_registration_that_turns_the_heading_away() -> None:
     gated = matcher()
     kept = [gated.match(room, predicted, gyro_prior=True) for _ in range(3)]
     assert [m.registered for m in kept] == [False, False, True]  # the 3rd in a row is taken
-    assert np.array_equal(kept[0].pose, predicted)
+    # Overruled: the gyro's heading, the registration's position (here the truth, the origin).
+    assert np.degrees(np.arctan2(kept[0].pose[1, 0], kept[0].pose[0, 0])) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(kept[0].pose, predicted, atol=2e-3)
     assert gated.overruled == 2
+
+
+def test_gyro_bias_follows_its_drift_between_stand_stills() -> None:
+    """The bias wanders 1e-3 rad/s over 300 s: a 180 deg turn right after the second
+    stand-still must use the bias measured there, not one averaged over the log."""
+    from mfmap.mapping.geometry import GyroIntegrator
+    from mfmap.types import ImuSeries, OdomSeries
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 300.0, 0.005)
+    still = ((t >= 20) & (t < 30)) | ((t >= 270) & (t < 280))
+    turning = (t >= 281) & (t < 287)
+    rate = np.where(turning, np.pi / 6.0, 0.0)  # 180 deg in 6 s
+    bias_z = 1e-3 * t / 300.0
+    gyro = rng.normal(0.0, 0.003, (len(t), 3))
+    gyro[:, 2] += rate + bias_z
+    stamps = (1_000_000_000 + np.round(t * 1e9)).astype(np.int64)
+    imu = ImuSeries(stamps, gyro, np.tile([0.0, 0.0, 9.81], (len(t), 1)), np.full((len(t), 4), np.nan))
+    k = slice(None, None, 4)  # odometry at 50 Hz
+    speed = np.where(still, 0.0, 0.5)[k]
+    odom = OdomSeries(stamps[k], np.zeros((len(speed), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(speed), 1)),
+                      np.column_stack([speed, np.zeros((len(speed), 2))]),
+                      np.column_stack([np.zeros((len(speed), 2)), rate[k]]))
+    gyro_int = GyroIntegrator(imu, np.eye(4), odom)
+    at = int(np.searchsorted(t, 285.0))
+    assert abs(gyro_int.bias_rad_s[at, 2] - bias_z[at]) < 1e-4
+    turn = gyro_int.delta(int(stamps[0] + 280.5e9), int(stamps[0] + 288e9))
+    yaw_deg = np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))
+    # A single bias over both stand-stills (5e-4 rad/s off here) would turn it 0.21 deg short.
+    assert abs(abs(yaw_deg) - 180.0) < 0.05
+
+
+def test_gyro_holds_the_heading_tighter_when_the_scan_sees_new_structure() -> None:
+    """A 0.15 deg correction is within the 0.2 deg allowed for a scan that matches the map
+    (fitness ~1), but over the 0.1 deg allowed for one that is a third new structure."""
+    from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
+
+    rng = np.random.default_rng(1)
+    room = _room(rng)
+    # A second room beyond the far wall, not in the map yet: about a third of the scan.
+    beyond = room[(room[:, 0] > -4) & (room[:, 0] < 4)][::2] + np.array([8.0, 0.0, 0.0])
+    predicted = yaw_pose(np.radians(0.15))
+
+    def matcher() -> ScanMatcher:
+        local_map = LocalMap(0.1, 10, 30.0)
+        local_map.add(room, np.zeros(3))
+        return ScanMatcher(0.1, local_map, AdaptiveThreshold(0.5, 0.0, 10.0, 0.3), 30,
+                           max_gyro_disagreement_deg=0.2, low_fitness=0.9)
+
+    seen = matcher().match(room, predicted, gyro_prior=True)
+    assert seen.fitness > 0.9 and seen.registered
+    assert abs(np.degrees(np.arctan2(seen.pose[1, 0], seen.pose[0, 0]))) < 0.05
+    new = matcher().match(np.vstack([room, beyond]), predicted, gyro_prior=True)
+    assert new.fitness < 0.9 and not new.registered
+    assert np.degrees(np.arctan2(new.pose[1, 0], new.pose[0, 0])) == pytest.approx(0.15, abs=1e-9)
