@@ -333,7 +333,11 @@ def accumulate(
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import optimised_trajectory
 
-    trajectory = optimised_trajectory(mapping, graph.poses)
+    rides = [(tr.start_ns, tr.end_ns) for tr in seg.transitions
+             if tr.kind == TransitionKind.ELEVATOR]
+    walks = [(tr.start_ns, tr.end_ns) for tr in seg.transitions
+             if tr.kind != TransitionKind.ELEVATOR]
+    trajectory = optimised_trajectory(mapping, graph.poses, rides, walks)
     maps = MapAccumulator(cfg.export, dict(graph.floor_z_m))
     if cfg.export.cloud_source == CloudSource.KEYFRAMES or trajectory.stamps_ns.shape[0] == 0:
         maps.min_hits = 1  # a keyframe cloud already merges several scans

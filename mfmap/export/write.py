@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from mfmap.export.files import tum_text, write_bytes, write_json, write_ply, write_text, write_yaml
 from mfmap.export.floorsjson import floors_json
@@ -36,8 +38,20 @@ class ExportSummary:
     floors_doc: dict[str, Any] = field(default_factory=dict)
 
 
-def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64]) -> Trajectory:
-    """Base pose at every lidar scan: optimised keyframe pose * ScanPose.relative."""
+def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
+                         rides: Sequence[tuple[int, int]] = (),
+                         walks: Sequence[tuple[int, int]] = ()) -> Trajectory:
+    """Base pose at every lidar scan: optimised keyframe pose * ScanPose.relative.
+
+    `rides` are elevator rides and `walks` stair walks (start_ns, end_ns). Their scans hang off
+    the last keyframe before them, and the next floor's off its first keyframe: where the graph
+    moved the two apart (floor registration against the lidar's own chain) the trajectory would
+    jump at the end. A ride's scans, metres below the cabin's end, would also swing centimetres
+    sideways with a tenth of a degree of tilt in that keyframe. So a ride's scans are put
+    between the poses just before and just after it (x, y and rotation interpolated in time, z
+    along the ride's own height profile scaled to the ends), and a walk's end jump is spread
+    over the walk, growing with time.
+    """
     floor_of = {k.id: k.floor_id for k in mapping.keyframes}
     items = sorted((sp for sp in mapping.scan_poses if sp.keyframe in poses), key=lambda s: s.stamp_ns)
     if not items:
@@ -45,7 +59,52 @@ def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64]) -> Traje
     stamps = np.array([sp.stamp_ns for sp in items], dtype=np.int64)
     out = np.stack([poses[sp.keyframe] @ sp.relative for sp in items])
     floor = np.array([floor_of.get(sp.keyframe, -1) for sp in items], dtype=np.int32)
+    for start_ns, end_ns in rides:
+        _between_ride_ends(stamps, out, start_ns, end_ns)
+    for start_ns, end_ns in walks:
+        _spread_walk_jump(stamps, out, floor, start_ns, end_ns)
     return Trajectory(stamps, out, floor)
+
+
+def _between_ride_ends(stamps: np.ndarray, out: np.ndarray, start_ns: int, end_ns: int) -> None:
+    lo = int(np.searchsorted(stamps, start_ns, side="left"))
+    hi = int(np.searchsorted(stamps, end_ns, side="right"))
+    if lo == 0 or hi >= len(stamps) or hi <= lo:
+        return
+    a, b = out[lo - 1].copy(), out[hi].copy()
+    t = (stamps[lo:hi] - stamps[lo - 1]) / float(stamps[hi] - stamps[lo - 1])
+    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))(t).as_matrix()
+    profile = out[lo:hi, 2, 3] - a[2, 3]
+    span = float(out[hi - 1, 2, 3] - a[2, 3])
+    rise = float(b[2, 3] - a[2, 3])
+    z = a[2, 3] + (profile * (rise / span) if abs(span) > 0.05 * max(abs(rise), 1e-3) else t * rise)
+    out[lo:hi, :3, :3] = rot
+    out[lo:hi, :2, 3] = a[None, :2, 3] + t[:, None] * (b[:2, 3] - a[:2, 3])[None, :]
+    out[lo:hi, 2, 3] = z
+
+
+def _spread_walk_jump(stamps: np.ndarray, out: np.ndarray, floor: np.ndarray, start_ns: int,
+                      end_ns: int) -> None:
+    lo = int(np.searchsorted(stamps, start_ns, side="left"))
+    changes = np.flatnonzero(floor[lo + 1:] != floor[lo:-1]) + lo + 1
+    if lo == 0 or len(changes) == 0:
+        return
+    hi = int(changes[0])  # the first scan on the next floor's keyframes
+    if hi - lo < 2 or stamps[hi - 1] > end_ns + 10 * (end_ns - start_ns):
+        return
+    # Where the walk's last scan says the next one is (its own motion, constant velocity)...
+    step = np.linalg.inv(out[hi - 2]) @ out[hi - 1]
+    gaps = np.diff(stamps[hi - 2:hi + 1]).astype(np.float64)
+    if not 0.5 <= gaps[1] / max(gaps[0], 1.0) <= 2.0:
+        step = np.eye(4)
+    jump = out[hi] @ np.linalg.inv(out[hi - 1] @ step)
+    # ...and the world correction that puts it there, grown from none at the walk's start.
+    t = (stamps[lo:hi] - stamps[lo - 1]) / float(stamps[hi - 1] - stamps[lo - 1])
+    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([np.eye(3), jump[:3, :3]])))(t).as_matrix()
+    corr = np.tile(np.eye(4), (len(t), 1, 1))
+    corr[:, :3, :3] = rot
+    corr[:, :3, 3] = t[:, None] * jump[None, :3, 3]
+    out[lo:hi] = corr @ out[lo:hi]
 
 
 def elevations(graph: GraphResult, mapping: MappingResult) -> dict[int, float]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from mfmap.export.write import Trajectory
@@ -104,3 +106,69 @@ def test_floor_groups_balance_scans() -> None:
     assert _floor_groups(used, traj, 2) == [{1, 2}, {0}]
     assert _floor_groups(used, traj, 1) == [{0, 1, 2}]
     assert _floor_groups(used, traj, 8) == [{0}, {1}, {2}]
+
+
+def test_ride_scans_sit_between_the_optimised_ride_ends() -> None:
+    """Ride scans hang off the keyframe before the ride, 4 m below the cabin's end: with that
+    keyframe pitched 1 deg they would swing 7 cm sideways; they go between the two ends."""
+    from scipy.spatial.transform import Rotation
+
+    from mfmap.export.write import optimised_trajectory
+    from mfmap.types import MappingResult, ScanPose
+
+    s = 1_000_000_000
+    empty = np.zeros((0, 3), np.float32)
+    kfs = [Keyframe(0, 0, 0, 0, np.eye(4), empty, 1.0, 0.0), Keyframe(1, 20 * s, 1, 1, np.eye(4), empty, 1.0, 0.0)]
+    scan_poses = [ScanPose(k * s, 0, np.eye(4)) for k in range(5)]  # standing in the cabin
+    ride_z = [0.0, 0.5, 2.0, 3.5, 4.0]
+    scan_poses += [ScanPose((5 + k) * s, 0, pose_xyyaw(0.0, 0.0, z, 0.0)) for k, z in enumerate(ride_z)]
+    scan_poses += [ScanPose((10 + k) * s, 1, np.eye(4)) for k in range(5)]
+    mapping = MappingResult(kfs, [], scan_poses)
+    pitched = np.eye(4)
+    pitched[:3, :3] = Rotation.from_euler("y", 1.0, degrees=True).as_matrix()
+    after = pose_xyyaw(0.02, -0.01, 4.01, np.radians(0.1))
+    poses = {0: pitched, 1: after}
+
+    plain = optimised_trajectory(mapping, poses)
+    assert plain.poses[9, 0, 3] > 0.06  # 4 m * sin(1 deg)
+
+    traj = optimised_trajectory(mapping, poses, [(5 * s, 9 * s)])
+    ride = traj.poses[5:10]
+    frac = (np.arange(5, 10) - 4) / 6.0  # time from the last scan before to the first after
+    np.testing.assert_allclose(ride[:, 0, 3], 0.02 * frac, atol=1e-9)
+    np.testing.assert_allclose(ride[:, 1, 3], -0.01 * frac, atol=1e-9)
+    # z keeps the ride's own profile, scaled to land on the optimised end (4.01 m).
+    np.testing.assert_allclose(ride[:, 2, 3], np.array(ride_z) * (4.01 / 4.0), atol=1e-3)
+    np.testing.assert_array_equal(traj.poses[10:], plain.poses[10:])
+
+
+def test_a_walks_end_jump_is_spread_over_the_walk() -> None:
+    """Stair-walk scans hang off the keyframe before the walk; the graph moved the next floor's
+    keyframe 0.3 deg and 3 cm against that chain: no jump is left at the walk's end."""
+    from mfmap.export.write import optimised_trajectory
+    from mfmap.types import MappingResult, ScanPose
+
+    s = 1_000_000_000
+    empty = np.zeros((0, 3), np.float32)
+    kfs = [Keyframe(0, 0, 0, 0, np.eye(4), empty, 1.0, 0.0), Keyframe(1, 20 * s, 1, 1, np.eye(4), empty, 1.0, 0.0)]
+    # Walking along x at 1 m/s, one scan a second; the walk is 5-14 s, the next floor from 15 s.
+    scan_poses = [ScanPose(k * s, 0, pose_xyyaw(float(k), 0.0, 0.0, 0.0)) for k in range(15)]
+    scan_poses += [ScanPose(k * s, 1, pose_xyyaw(float(k - 15), 0.0, 0.0, 0.0)) for k in range(15, 20)]
+    mapping = MappingResult(kfs, [], scan_poses)
+    moved = pose_xyyaw(15.0, 0.03, 0.0, np.radians(0.3))  # where the graph put floor 1's start
+    poses = {0: np.eye(4), 1: moved}
+
+    plain = optimised_trajectory(mapping, poses)
+    traj = optimised_trajectory(mapping, poses, walks=[(5 * s, 14 * s)])
+
+    def yaw_deg(p: np.ndarray) -> float:
+        return float(np.degrees(np.arctan2(p[1, 0], p[0, 0])))
+
+    np.testing.assert_array_equal(traj.poses[:5], plain.poses[:5])
+    np.testing.assert_array_equal(traj.poses[15:], plain.poses[15:])
+    assert abs(yaw_deg(plain.poses[15]) - yaw_deg(plain.poses[14])) > 0.29  # the jump
+    # Now the last walk scan, one step on, lands on the next floor's first scan.
+    step = pose_xyyaw(1.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(traj.poses[14] @ step, traj.poses[15], atol=1e-9)
+    yaws = [yaw_deg(p) for p in traj.poses[4:16]]
+    assert all(b >= a - 1e-9 for a, b in itertools.pairwise(yaws))  # the turn grows over the walk
