@@ -41,7 +41,13 @@ class GraphConfig(BaseModel):
         description="'filtered': the floors stage's filtered height trace (spikes and door/HVAC "
         "transients removed); 'raw': the pressure samples",
     )
-    baro_sigma_m: float = Field(0.15, description="barometric height noise per keyframe (m)")
+    baro_sigma_m: float = Field(
+        0.5,
+        description="barometric height noise per keyframe (m). More than one reading's noise "
+        "(about 5 cm over the averaging window): door and HVAC steps and weather last many "
+        "keyframes, so the keyframes' errors are not independent (0.15 m put stairs' top floor "
+        "at 31 mm, 0.5 m at 20 mm)",
+    )
     baro_window_s: float = Field(0.5, description="pressure averaged +- this around a keyframe")
     bias_random_walk_m_sqrt_s: float = Field(
         0.01, description="barometer bias drift: sigma of the random walk per sqrt(second)"
