@@ -56,7 +56,7 @@ class MappingConfig(BaseModel):
         "its heading more than this from the gyro's (0: off)",
     )
     icp_gyro_low_fitness: float = Field(
-        0.9, ge=0.0, le=1.0,
+        0.95, ge=0.0, le=1.0,
         description="below this registration fitness (a scan seeing much new structure) the "
         "gyro disagreement allowed is halved",
     )
