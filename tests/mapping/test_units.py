@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
 from mfmap.mapping.cabin import through_box
 from mfmap.mapping.geometry import deskew, yaw_pose
 from mfmap.mapping.loops import descriptor_distance, place_descriptor
+from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.posegraph import optimize_poses
 from mfmap.types import PoseEdge
 
@@ -100,18 +103,20 @@ def _room(rng: np.random.Generator) -> np.ndarray:
     return np.concatenate(wall)
 
 
-def test_gyro_overrules_a_registration_that_turns_the_heading_away() -> None:
-    from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
+def _room_matcher(room: np.ndarray, **kwargs: Any) -> ScanMatcher:
+    """A scan matcher whose local map is `room` (0.1 m voxels)."""
+    local_map = LocalMap(0.1, 10, 30.0)
+    local_map.add(room, np.zeros(3))
+    return ScanMatcher(0.1, local_map, AdaptiveThreshold(0.5, 0.0, 10.0, 0.3), 30, **kwargs)
 
+
+def test_gyro_overrules_a_registration_that_turns_the_heading_away() -> None:
     rng = np.random.default_rng(0)
     room = _room(rng)
     predicted = yaw_pose(np.radians(1.0))  # the truth is identity: the prior is 1 degree off
 
     def matcher() -> ScanMatcher:
-        local_map = LocalMap(0.1, 10, 30.0)
-        local_map.add(room, np.zeros(3))
-        return ScanMatcher(0.1, local_map, AdaptiveThreshold(0.5, 0.0, 10.0, 0.3), 30,
-                           max_gyro_disagreement_deg=0.2, max_overruled=2)
+        return _room_matcher(room, max_gyro_disagreement_deg=0.2, max_overruled=2)
 
     free = matcher().match(room, predicted, gyro_prior=False)
     assert free.registered
@@ -158,8 +163,6 @@ def test_gyro_bias_follows_its_drift_between_stand_stills() -> None:
 def test_gyro_holds_the_heading_tighter_when_the_scan_sees_new_structure() -> None:
     """A 0.15 deg correction is within the 0.2 deg allowed for a scan that matches the map
     (fitness ~1), but over the 0.1 deg allowed for one that is a third new structure."""
-    from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
-
     rng = np.random.default_rng(1)
     room = _room(rng)
     # A second room beyond the far wall, not in the map yet: about a third of the scan.
@@ -167,10 +170,7 @@ def test_gyro_holds_the_heading_tighter_when_the_scan_sees_new_structure() -> No
     predicted = yaw_pose(np.radians(0.15))
 
     def matcher() -> ScanMatcher:
-        local_map = LocalMap(0.1, 10, 30.0)
-        local_map.add(room, np.zeros(3))
-        return ScanMatcher(0.1, local_map, AdaptiveThreshold(0.5, 0.0, 10.0, 0.3), 30,
-                           max_gyro_disagreement_deg=0.2, low_fitness=0.9)
+        return _room_matcher(room, max_gyro_disagreement_deg=0.2, low_fitness=0.9)
 
     seen = matcher().match(room, predicted, gyro_prior=True)
     assert seen.fitness > 0.9 and seen.registered
