@@ -66,6 +66,11 @@ def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
     return Trajectory(stamps, out, floor)
 
 
+def _slerp(r0: np.ndarray, r1: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Rotation matrices from r0 (t = 0) to r1 (t = 1) at the fractions t."""
+    return np.asarray(Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([r0, r1])))(t).as_matrix())
+
+
 def _between_ride_ends(stamps: np.ndarray, out: np.ndarray, start_ns: int, end_ns: int) -> None:
     lo = int(np.searchsorted(stamps, start_ns, side="left"))
     hi = int(np.searchsorted(stamps, end_ns, side="right"))
@@ -73,7 +78,7 @@ def _between_ride_ends(stamps: np.ndarray, out: np.ndarray, start_ns: int, end_n
         return
     a, b = out[lo - 1].copy(), out[hi].copy()
     t = (stamps[lo:hi] - stamps[lo - 1]) / float(stamps[hi] - stamps[lo - 1])
-    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))(t).as_matrix()
+    rot = _slerp(a[:3, :3], b[:3, :3], t)
     profile = out[lo:hi, 2, 3] - a[2, 3]
     span = float(out[hi - 1, 2, 3] - a[2, 3])
     rise = float(b[2, 3] - a[2, 3])
@@ -91,7 +96,7 @@ def _spread_walk_jump(stamps: np.ndarray, out: np.ndarray, floor: np.ndarray, st
         return
     hi = int(changes[0])  # the first scan on the next floor's keyframes
     if hi - lo < 2 or stamps[hi - 1] > end_ns + 10 * (end_ns - start_ns):
-        return
+        return  # too few scans, or no keyframe on the next floor anywhere near the walk's end
     # Where the walk's last scan says the next one is (its own motion, constant velocity)...
     step = np.linalg.inv(out[hi - 2]) @ out[hi - 1]
     gaps = np.diff(stamps[hi - 2:hi + 1]).astype(np.float64)
@@ -100,7 +105,7 @@ def _spread_walk_jump(stamps: np.ndarray, out: np.ndarray, floor: np.ndarray, st
     jump = out[hi] @ np.linalg.inv(out[hi - 1] @ step)
     # ...and the world correction that puts it there, grown from none at the walk's start.
     t = (stamps[lo:hi] - stamps[lo - 1]) / float(stamps[hi - 1] - stamps[lo - 1])
-    rot = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([np.eye(3), jump[:3, :3]])))(t).as_matrix()
+    rot = _slerp(np.eye(3), jump[:3, :3], t)
     corr = np.tile(np.eye(4), (len(t), 1, 1))
     corr[:, :3, :3] = rot
     corr[:, :3, 3] = t[:, None] * jump[None, :3, 3]
