@@ -58,7 +58,16 @@ class GraphConfig(BaseModel):
     transition_height: bool = Field(
         True, description="the floors stage's height change across each transition as a z factor"
     )
-    transition_sigma_z_m: float = Field(0.03, description="noise of that height change (m)")
+    transition_sigma_z_m: float = Field(
+        0.03, description="noise of the floors stage's height change, used where the fit below cannot run (m)"
+    )
+    transition_window_s: float = Field(
+        120.0,
+        ge=0,
+        description="height change across a transition from a fit over up to this much of the raw "
+        "barometer trace on each side (s), with its own sigma; 0: the floors stage's change at "
+        "transition_sigma_z_m",
+    )
     imu_ride_height: bool = Field(
         True,
         description="each elevator ride's height change from the IMU (vertical specific force "
