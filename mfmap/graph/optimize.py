@@ -356,6 +356,7 @@ def optimize_building(
             builder, values, kfs, initial_poses, pressure, segmentation, config, temperature_k, warnings
         )
         rides = _add_elevator(builder, kfs, initial_poses, segmentation, config, imu)
+        warnings.extend(_ride_disagreements(rides))
         if config.same_floor_height_tie:
             _add_height_ties(builder, values, kfs, initial_poses)
         if config.gravity_factors:
@@ -557,6 +558,24 @@ def _transition_height(
             return fit.height_change_m, sigma
     entry["baro_sigma_m"] = config.transition_sigma_z_m
     return tr.height_change_m, config.transition_sigma_z_m
+
+
+def _ride_disagreements(rides: list[dict[str, Any]], n_sigma: float = 4.0) -> list[str]:
+    """A warning per ride whose IMU and barometer height changes differ by more than n_sigma:
+    one of them is wrong (a pressure step at the ride, a bias change in the IMU), and the graph
+    can only weigh them."""
+    out = []
+    for r in rides:
+        if r.get("imu") != "ok" or "imu_height_change_m" not in r:
+            continue
+        diff = r["imu_height_change_m"] - r["baro_height_change_m"]
+        sigma = math.hypot(r["imu_sigma_m"], r["baro_sigma_m"])
+        if abs(diff) > n_sigma * sigma:
+            out.append(
+                f"graph: ride {r['from_floor']}->{r['to_floor']}: the IMU's height change differs from "
+                f"the barometer's by {100 * diff:+.1f} cm ({abs(diff) / sigma:.0f} sigma)"
+            )
+    return out
 
 
 def _add_imu_ride(
