@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 ABLATIONS: dict[str, dict[str, bool]] = {
     "full": {},
     "no barometer factors": {"barometer_factors": False},
+    "no barometric transition heights": {"transition_height": False},
     "no elevator continuity": {"elevator_continuity": False},
     "no inter-floor registration": {"inter_floor_registration": False},
     "no IMU ride height": {"imu_ride_height": False},
