@@ -205,9 +205,10 @@ class _Builder:
         if links:
             self.links.append((i, j))
 
-    def world_dz(self, kind: str, i: int, j: int, dz_m: float, sigma_m: float,
-                 robust: bool = False, keys: tuple[int, int] | None = None) -> None:
-        """z_j - z_i = dz_m in the world frame, whatever the two poses' tilt.
+    def world_dz(self, kind: str, key_i: int, key_j: int, dz_m: float, sigma_m: float,
+                 robust: bool = False) -> None:
+        """z_j - z_i = dz_m in the world frame, whatever the two poses' tilt (gtsam keys of two
+        Pose3 variables: keyframes X(id) or floor levels Fl(id)).
 
         A BetweenFactorPose3 with only z tight measures z in pose i's frame: a tilt of a
         fraction of a degree there turns the horizontal run between the poses (several metres
@@ -227,7 +228,7 @@ class _Builder:
                 jacobians[1] = np.concatenate([zero, b.rotation().matrix()[2]]).reshape(1, 6)
             return np.array([b.z() - a.z() - dz_m])
 
-        self.add(kind, gtsam.CustomFactor(model, list(keys) if keys else [X(i), X(j)], error), np.eye(1) / sigma_m)
+        self.add(kind, gtsam.CustomFactor(model, [key_i, key_j], error), np.eye(1) / sigma_m)
 
     def reject(self, kind: str) -> None:
         self.stats.setdefault(kind, FactorStats()).rejected += 1
@@ -539,7 +540,7 @@ def _add_elevator(
         else:
             entry["imu"] = "off" if tr.kind == TransitionKind.ELEVATOR else "not an elevator ride"
         if config.transition_height:
-            builder.world_dz("transition_z", a.id, b.id, baro_dz, baro_sigma, keys=keys)
+            builder.world_dz("transition_z", *(keys or (X(a.id), X(b.id))), baro_dz, baro_sigma)
         if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
@@ -621,7 +622,7 @@ def _add_imu_ride(
         entry["imu"] = f"rejected: differs from the barometer by more than {config.imu_ride_gate_m} m"
         builder.reject("imu_ride")
         return
-    builder.world_dz("imu_ride", a.id, b.id, ride.height_change_m, ride.sigma_m, robust=True, keys=keys)
+    builder.world_dz("imu_ride", *(keys or (X(a.id), X(b.id))), ride.height_change_m, ride.sigma_m, robust=True)
 
 
 def _add_height_ties(
@@ -629,29 +630,29 @@ def _add_height_ties(
 ) -> None:
     """Every keyframe of a floor shares that floor's z: a floor variable f<id> tied to each.
 
-    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. Only the
-    z component is tight; the floor variable's x, y and rotation are left nearly free.
+    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. The floor
+    variable is a Pose3 with only z free (held level at its first keyframe's x, y), and each tie
+    is a world-z factor (robust). A BetweenFactorPose3 with only z tight, as before, measured z
+    in the floor variable's frame, through SE(3)'s log that mixes rotation into translation: a
+    keyframe's tilt times its distance from the floor variable (tens of metres) became
+    centimetres of height, and a floor variable free to drift sideways with a milliradian of
+    tilt put tiny-2d's keyframes 6 cm off their floor's level.
     """
     sig = builder.config.height_tie_sigma_m
-    sigmas = np.array([FREE_SIGMA, FREE_SIGMA, FREE_SIGMA, 100 * FREE_SIGMA, 100 * FREE_SIGMA, sig])
-    up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
-    anchors: dict[int, F64] = {}
+    pin = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e3])
     for kf in kfs:
         if kf.floor_id < 0:
             continue
-        if kf.floor_id not in anchors:
+        if not values.exists(Fl(kf.floor_id)):
             anchor = np.eye(4)
             anchor[:3, 3] = initial[kf.id][:3, 3]
-            anchors[kf.floor_id] = anchor
             values.insert(Fl(kf.floor_id), gtsam.Pose3(anchor))
-            # Keep the floor variable level so its local z is the world z.
-            model = gtsam.noiseModel.Isotropic.Sigma(2, 1e-3)
-            builder.add("floor_level", gtsam.AttitudeFactorPose3(Fl(kf.floor_id), up, model, up),
-                        np.eye(2) / 1e-3)
-        measured = _relative_level(anchors[kf.floor_id], initial[kf.id], 0.0)
-        model = _robust(builder.config, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
-        factor = gtsam.BetweenFactorPose3(Fl(kf.floor_id), X(kf.id), gtsam.Pose3(measured), model)
-        builder.add("height_tie", factor, _sqrt_info_from_sigmas(sigmas))
+            builder.add(
+                "floor_level",
+                gtsam.PriorFactorPose3(Fl(kf.floor_id), gtsam.Pose3(anchor), gtsam.noiseModel.Diagonal.Sigmas(pin)),
+                _sqrt_info_from_sigmas(pin),
+            )
+        builder.world_dz("height_tie", Fl(kf.floor_id), X(kf.id), 0.0, sig, robust=True)
 
 
 def _anchors(

@@ -26,7 +26,7 @@ def _solve(pitch_deg: float, world_dz: bool) -> float:
     builder.add("prior", gtsam.PriorFactorPose3(X(1), b_guess, gtsam.noiseModel.Diagonal.Sigmas(sigmas)),
                 np.eye(6))
     if world_dz:
-        builder.world_dz("transition_z", 0, 1, 3.5, 0.03)
+        builder.world_dz("transition_z", X(0), X(1), 3.5, 0.03)
     else:  # the old way: a between factor, z tight in a's frame, the rest free
         measured = np.eye(4)  # b relative to a, as a level a would see it
         measured[:3, 3] = [7.0, 0.0, 3.5]
