@@ -54,12 +54,30 @@ MIN_SIDE_S = 5.0
 BLOCK_S = 1.0
 
 
+@dataclass(frozen=True)
+class RawTrace:
+    """The segmentation's raw heights on a uniform grid, with their 1 s running median."""
+
+    times_s: F64  # from the first sample
+    height_m: F64
+    median_m: F64
+    dt_s: float
+
+
+def raw_trace(seg: FloorSegmentation) -> RawTrace:
+    """Once per segmentation: every transition's fit reads the same grid."""
+    t_all = (seg.stamp_ns - seg.stamp_ns[0]).astype(np.float64) / 1e9
+    grid = resample_uniform(t_all, np.asarray(seg.height_raw_m, dtype=np.float64))
+    return RawTrace(grid.times_s, grid.values, running_median_1s(grid.values, grid.dt_s), grid.dt_s)
+
+
 def level_change(
     seg: FloorSegmentation,
     index: int,
     window_s: float = 120.0,
     gap_s: float = 1.0,
     step_m: float = 0.25,
+    trace: RawTrace | None = None,
 ) -> LevelChange:
     """Height change across transition `index` from the raw barometer samples on both sides.
 
@@ -71,16 +89,15 @@ def level_change(
     residuals over `step_m`) and left out, with a second either side. The fit runs on the raw
     samples, not the floors stage's smoothed trace: its pulse removal leaves centimetres of step
     behind, which a level over a minute still sees. The sigma is the fit's, scaled up when the
-    residuals are correlated over a second (a phone's barometer wanders).
+    residuals are correlated over a second (a phone's barometer wanders). `trace`: the
+    segmentation's `raw_trace`, when the caller fits several transitions.
     """
     tr = seg.transitions[index]
     stamp = seg.stamp_ns
     if stamp.shape[0] < 10:
         return LevelChange(None, 0.0, 0.0, 0.0, "too few barometer samples")
-    t_all = (stamp - stamp[0]).astype(np.float64) / 1e9
-    grid = resample_uniform(t_all, np.asarray(seg.height_raw_m, dtype=np.float64))
-    t, raw, dt = grid.times_s, grid.values, grid.dt_s
-    med = running_median_1s(raw, dt)
+    trace = trace if trace is not None else raw_trace(seg)
+    t, raw, med, dt = trace.times_s, trace.height_m, trace.median_m, trace.dt_s
 
     def sec(ns: int) -> float:
         return (ns - int(stamp[0])) / 1e9

@@ -11,7 +11,7 @@ order) drifting as a random walk. Factors, by kind:
   either side, mfmap.graph.barometer.level_change);
 - imu_ride: an elevator ride's height change from the IMU (mfmap.graph.ride), z only;
 - interfloor: global registration of adjacent floors, x, y, yaw only;
-- height_tie: consecutive keyframes of one floor share z (ground robots);
+- height_tie: every keyframe of a floor at that floor's level f<id> (world z; ground robots);
 - gravity: roll/pitch from the IMU's gravity (or level when there is no IMU);
 - bridge: a weak link (z free) only where nothing else connects two parts of the graph.
 """
@@ -30,7 +30,13 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from mfmap.graph.barometer import level_change, pressure_at, pressure_to_height_m
+from mfmap.graph.barometer import (
+    RawTrace,
+    level_change,
+    pressure_at,
+    pressure_to_height_m,
+    raw_trace,
+)
 from mfmap.graph.config import BaroSource, GraphConfig, RobustKernel
 from mfmap.graph.interfloor import FloorMatch, register_floors
 from mfmap.graph.ride import ride_height
@@ -410,13 +416,12 @@ def optimize_building(
             stats.outliers += 1
 
     poses = {i: np.asarray(result.atPose3(X(i)).matrix(), dtype=np.float64) for i in ids}
+    by_id = {k.id: k for k in kfs}
     for ride in rides:
-        if "levels" in ride:  # the floors' levels, where the ride's height factors act
-            lo, hi = (Fl(f) for f in ride.pop("levels"))
-            ride["graph_height_change_m"] = round(float(result.atPose3(hi).z() - result.atPose3(lo).z()), 4)
-        elif "keyframes" in ride:
+        if "keyframes" in ride:
             a, b = ride["keyframes"]
-            ride["graph_height_change_m"] = round(float(poses[b][2, 3] - poses[a][2, 3]), 4)
+            lo, hi = _height_keys(by_id[a], by_id[b], config)
+            ride["graph_height_change_m"] = round(float(result.atPose3(hi).z() - result.atPose3(lo).z()), 4)
     bias = {k: float(result.atDouble(B(k))) for k in range(len(kfs)) if result.exists(B(k))}
     return GraphResult(
         poses=poses,
@@ -507,6 +512,7 @@ def _add_elevator(
     yaw = math.radians(config.elevator_sigma_yaw_deg)
     sig_xy = config.elevator_sigma_xy_m
     tilt = math.radians(config.gravity_sigma_deg) * 5.0
+    trace = raw_trace(seg) if config.transition_window_s > 0 and len(seg.stamp_ns) > 0 else None
     for index, tr in enumerate(seg.transitions):
         ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
         entry: dict[str, Any] = {
@@ -523,24 +529,14 @@ def _add_elevator(
             continue
         a, b = ends
         entry["keyframes"] = [a.id, b.id]
-        baro_dz, baro_sigma = _transition_height(seg, index, config, entry)
-        # A ground robot stands on the floors at both ends: the height change is between the
-        # floors' levels, not between two keyframes, which the floors' ties (2 cm each) would
-        # let it bend locally instead of moving the floor (elevation error over seeds 0-2 of
-        # two-floor, three-floor-revisit and stairs: 1.6 -> 1.1 cm RMS).
-        keys = (
-            (Fl(a.floor_id), Fl(b.floor_id))
-            if config.same_floor_height_tie and a.floor_id >= 0 and b.floor_id >= 0 and a.floor_id != b.floor_id
-            else None
-        )
-        if keys is not None:
-            entry["levels"] = [a.floor_id, b.floor_id]
+        baro_dz, baro_sigma = _transition_height(seg, index, config, entry, trace)
+        keys = _height_keys(a, b, config)
         if tr.kind == TransitionKind.ELEVATOR and config.imu_ride_height:
-            _add_imu_ride(builder, a, b, tr.start_ns, tr.end_ns, baro_dz, imu, config, entry, keys)
+            _add_imu_ride(builder, keys, tr.start_ns, tr.end_ns, baro_dz, imu, config, entry)
         else:
             entry["imu"] = "off" if tr.kind == TransitionKind.ELEVATOR else "not an elevator ride"
         if config.transition_height:
-            builder.world_dz("transition_z", *(keys or (X(a.id), X(b.id))), baro_dz, baro_sigma)
+            builder.world_dz("transition_z", *keys, baro_dz, baro_sigma)
         if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
@@ -555,14 +551,27 @@ def _add_elevator(
     return rides
 
 
+def _height_keys(a: Keyframe, b: Keyframe, config: GraphConfig) -> tuple[int, int]:
+    """Where a transition's height factors act, from its keyframes a (before) and b (after).
+
+    A ground robot stands on the floors at both ends: the height change is between the floors'
+    levels, not between two keyframes, which the floors' ties (2 cm each) would let it bend
+    locally instead of moving the floor (elevation error over seeds 0-2 of two-floor,
+    three-floor-revisit and stairs: 1.6 -> 1.1 cm RMS). The keyframes without the ties.
+    """
+    if config.same_floor_height_tie and a.floor_id >= 0 and b.floor_id >= 0 and a.floor_id != b.floor_id:
+        return Fl(a.floor_id), Fl(b.floor_id)
+    return X(a.id), X(b.id)
+
+
 def _transition_height(
-    seg: FloorSegmentation, index: int, config: GraphConfig, entry: dict[str, Any]
+    seg: FloorSegmentation, index: int, config: GraphConfig, entry: dict[str, Any], trace: RawTrace | None
 ) -> tuple[float, float]:
     """The barometer's height change across transition `index` and its sigma: the fit on the raw
     trace either side (mfmap.graph.barometer.level_change) where it runs, else the floors stage's."""
     tr = seg.transitions[index]
     if config.transition_window_s > 0:
-        fit = level_change(seg, index, config.transition_window_s)
+        fit = level_change(seg, index, config.transition_window_s, trace=trace)
         entry["baro_fit"] = fit.reason
         if fit.height_change_m is not None:
             sigma = math.hypot(fit.sigma_m, BARO_MODEL_SIGMA_M)
@@ -595,17 +604,16 @@ def _ride_disagreements(rides: list[dict[str, Any]], n_sigma: float = 4.0) -> li
 
 def _add_imu_ride(
     builder: _Builder,
-    a: Keyframe,
-    b: Keyframe,
+    keys: tuple[int, int],
     start_ns: int,
     end_ns: int,
     baro_dz_m: float,
     imu: ImuSeries | None,
     config: GraphConfig,
     entry: dict[str, Any],
-    keys: tuple[int, int] | None = None,
 ) -> None:
-    """The IMU's height change across one ride as a z-only factor between the ride's keyframes.
+    """The IMU's height change across one ride as a z-only factor between `keys` (the floors'
+    levels, or the ride's keyframes: `_height_keys`).
 
     Gated against the barometer's height change (a wrong IMU bias or a missed stand-still gives
     decimetres, not centimetres) and robust, so a bad IMU does not win.
@@ -622,7 +630,7 @@ def _add_imu_ride(
         entry["imu"] = f"rejected: differs from the barometer by more than {config.imu_ride_gate_m} m"
         builder.reject("imu_ride")
         return
-    builder.world_dz("imu_ride", *(keys or (X(a.id), X(b.id))), ride.height_change_m, ride.sigma_m, robust=True)
+    builder.world_dz("imu_ride", *keys, ride.height_change_m, ride.sigma_m, robust=True)
 
 
 def _add_height_ties(

@@ -8,27 +8,19 @@ import numpy as np
 
 from mfmap.config import MfmapConfig
 from mfmap.floors.segment import segment_pressure
+from mfmap.floors.synthetic import sim_barometer
 from mfmap.graph.barometer import level_change
-from mfmap.sim.building import Building
-from mfmap.sim.run import SCENARIOS, build_trajectory, reference_pressure_pa
-from mfmap.sim.sensors import Barometer
-from mfmap.sim.trajectory import RATE_HZ
-from mfmap.types import FloorSegmentation, PressureSeries
+from mfmap.types import FloorSegmentation
 
 
 def _simulated(scenario: str, seed: int) -> tuple[FloorSegmentation, list[float]]:
     """The simulator's barometer alone (weather drift, wander, door/HVAC steps, noise) for one
     route, segmented by the floors stage; with the true height change of every transition."""
-    spec = SCENARIOS[scenario]
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
-    traj = build_trajectory(spec, building, seed, 1)
-    baro = Barometer(spec.baro, traj, reference_pressure_pa(seed), seed)
-    rate = spec.baro.rate_hz
-    ticks = np.arange(int(traj.duration_s * rate))
-    pressure = PressureSeries((ticks * (1_000_000_000 // rate)).astype(np.int64), baro.samples(ticks * (RATE_HZ // rate)))
-    seg = segment_pressure(pressure, None, MfmapConfig().floors)
-    assert len(seg.transitions) == len(traj.transitions)
-    truth = [building.elevation(t.to_floor) - building.elevation(t.from_floor) for t in traj.transitions]
+    sim = sim_barometer(scenario, seed)
+    seg = segment_pressure(sim.pressure, None, MfmapConfig().floors)
+    elevation = {f["id"]: f["elevation_m"] for f in sim.gt_floors["floors"]}
+    truth = [elevation[t["to"]] - elevation[t["from"]] for t in sim.gt_floors["transitions"]]
+    assert len(seg.transitions) == len(truth)
     return seg, truth
 
 
@@ -46,7 +38,7 @@ def test_within_2_5_cm_over_seeds_and_twice_as_close_as_the_floors_stage() -> No
     assert len(fit_err) == 8 * (1 + 3 + 2)
     rms = float(np.sqrt(np.mean(np.square(fit_err))))
     rms_floors = float(np.sqrt(np.mean(np.square(floors_err))))
-    # Measured: 1.9 cm against the floors stage's 4.0 cm; the sigma is honest (chi2 / n ~ 1.1).
+    # Measured: 1.7 cm against the floors stage's 3.4 cm; the sigma is honest (chi2 / n 0.8).
     assert rms < 0.025
     assert rms < 0.6 * rms_floors
     assert 0.5 < float(np.mean(np.square(z))) < 2.0
