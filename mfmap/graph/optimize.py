@@ -72,7 +72,23 @@ def B(k: int) -> int:
 
 
 def Fl(floor: int) -> int:
+    """A floor's level: a double holding minus its z (see LEVEL_KPA)."""
     return int(gtsam.symbol("f", floor))
+
+
+# gtsam.BarometricFactor(x, f, p) has error z_x + f - height(p). At the pressure whose height is
+# zero, with f holding minus a floor's level, it is z_x - level: a world-z tie between a keyframe
+# and its floor, in C++. Python CustomFactors for the ties cost 10 s of graph time on `long`.
+LEVEL_KPA = float(gtsam.BarometricFactor().baroOut(0.0))
+
+
+def _is_level(key: int) -> bool:
+    return gtsam.Symbol(key).chr() == ord("f")
+
+
+def _z(values: Any, key: int) -> float:
+    """World z of a keyframe X(id) or a floor level Fl(id)."""
+    return -float(values.atDouble(key)) if _is_level(key) else float(values.atPose3(key).z())
 
 
 @dataclass
@@ -214,7 +230,7 @@ class _Builder:
     def world_dz(self, kind: str, key_i: int, key_j: int, dz_m: float, sigma_m: float,
                  robust: bool = False) -> None:
         """z_j - z_i = dz_m in the world frame, whatever the two poses' tilt (gtsam keys of two
-        Pose3 variables: keyframes X(id) or floor levels Fl(id)).
+        keyframes X(id), or of two floor levels Fl(id): a BetweenFactorDouble on their minus z).
 
         A BetweenFactorPose3 with only z tight measures z in pose i's frame: a tilt of a
         fraction of a degree there turns the horizontal run between the poses (several metres
@@ -223,6 +239,9 @@ class _Builder:
         model = gtsam.noiseModel.Isotropic.Sigma(1, sigma_m)
         if robust:
             model = _robust(self.config, model)
+        if _is_level(key_i) and _is_level(key_j):
+            self.add(kind, gtsam.BetweenFactorDouble(key_i, key_j, -dz_m, model), np.eye(1) / sigma_m)
+            return
         # Pose3 retraction moves the translation by R v (first order), not by the rotation part.
         zero = np.zeros(3)
 
@@ -421,7 +440,7 @@ def optimize_building(
         if "keyframes" in ride:
             a, b = ride["keyframes"]
             lo, hi = _height_keys(by_id[a], by_id[b], config)
-            ride["graph_height_change_m"] = round(float(result.atPose3(hi).z() - result.atPose3(lo).z()), 4)
+            ride["graph_height_change_m"] = round(_z(result, hi) - _z(result, lo), 4)
     bias = {k: float(result.atDouble(B(k))) for k in range(len(kfs)) if result.exists(B(k))}
     return GraphResult(
         poses=poses,
@@ -636,31 +655,22 @@ def _add_imu_ride(
 def _add_height_ties(
     builder: _Builder, values: Any, kfs: list[Keyframe], initial: dict[int, F64]
 ) -> None:
-    """Every keyframe of a floor shares that floor's z: a floor variable f<id> tied to each.
+    """Every keyframe of a floor shares that floor's z: a floor level f<id> tied to each.
 
-    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. The floor
-    variable is a Pose3 with only z free (held level at its first keyframe's x, y), and each tie
-    is a world-z factor (robust). A BetweenFactorPose3 with only z tight, as before, measured z
-    in the floor variable's frame, through SE(3)'s log that mixes rotation into translation: a
-    keyframe's tilt times its distance from the floor variable (tens of metres) became
-    centimetres of height, and a floor variable free to drift sideways with a milliradian of
-    tilt put tiny-2d's keyframes 6 cm off their floor's level.
+    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. Each tie is
+    a world-z factor (robust; LEVEL_KPA). A BetweenFactorPose3 with only z tight, as before,
+    measured z in the floor variable's frame, through SE(3)'s log that mixes rotation into
+    translation: a keyframe's tilt times its distance from the floor variable (tens of metres)
+    became centimetres of height, and put tiny-2d's keyframes 6 cm off their floor's level.
     """
     sig = builder.config.height_tie_sigma_m
-    pin = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e3])
+    model = _robust(builder.config, gtsam.noiseModel.Isotropic.Sigma(1, sig))
     for kf in kfs:
         if kf.floor_id < 0:
             continue
         if not values.exists(Fl(kf.floor_id)):
-            anchor = np.eye(4)
-            anchor[:3, 3] = initial[kf.id][:3, 3]
-            values.insert(Fl(kf.floor_id), gtsam.Pose3(anchor))
-            builder.add(
-                "floor_level",
-                gtsam.PriorFactorPose3(Fl(kf.floor_id), gtsam.Pose3(anchor), gtsam.noiseModel.Diagonal.Sigmas(pin)),
-                _sqrt_info_from_sigmas(pin),
-            )
-        builder.world_dz("height_tie", Fl(kf.floor_id), X(kf.id), 0.0, sig, robust=True)
+            values.insert(Fl(kf.floor_id), -float(initial[kf.id][2, 3]))
+        builder.add("height_tie", gtsam.BarometricFactor(X(kf.id), Fl(kf.floor_id), LEVEL_KPA, model), np.eye(1) / sig)
 
 
 def _anchors(
