@@ -36,6 +36,13 @@ class MappingConfig(BaseModel):
         "one (tiny-2d checkpoints 3.6 / 6.6 mm, 11.1 / 15.7 mm with every third)",
     )
     deskew: bool = Field(True, description="undo motion during a sweep with per-point times")
+    odom_scale_min_m: float = Field(
+        5.0, ge=0.0,
+        description="calibrate the wheel odometry's distance scale against the lidar once this "
+        "much travel between keyframes has been registered since the last elevator ride (0: off); "
+        "the motion prior carries the robot out of the cabin, and a 6 percent scale error put a floor "
+        "visit's cabin scans 8 cm off",
+    )
     motion_prior: MotionPrior = Field(MotionPrior.AUTO, description="initial guess per scan")
     icp_max_iterations: int = Field(30, description="ICP iterations per scan")
     icp_tolerance: float = Field(

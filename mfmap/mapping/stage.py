@@ -38,6 +38,7 @@ from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
+from mfmap.mapping.wheelscale import WheelScale, rescale
 from mfmap.mapping.workers import worker_pool
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import (
@@ -142,6 +143,7 @@ class MotionModel:
         if not use_gyro:
             self.gyro = None
         self.source = "odometry" if self.odom else ("imu" if self.gyro else "constant velocity")
+        self.odom_scale = 1.0  # the wheels' distance scale (calibrated against the lidar)
         self._imu_stamp_ns: I64 | None = None
         self._accel_base: F64 | None = None
         if imu is not None and len(imu) > 0:
@@ -182,6 +184,7 @@ class MotionModel:
         delta[:3, 3] = linear * dt
         if self.odom is not None and self.odom.covers(state.stamp_ns) and self.odom.covers(stamp_ns):
             delta = inverse(self.odom.at(state.stamp_ns)) @ self.odom.at(stamp_ns)
+            delta[:3, 3] *= self.odom_scale
         if self.gyro is not None and self.gyro.covers(state.stamp_ns) and self.gyro.covers(stamp_ns):
             delta[:3, :3] = self.gyro.delta(state.stamp_ns, stamp_ns)
         return delta
@@ -193,6 +196,13 @@ class MotionModel:
 
     def relative(self, from_ns: int, to_ns: int) -> F64 | None:
         """Base at to_ns in the base at from_ns, from wheel odometry (None without it)."""
+        rel = self.wheels(from_ns, to_ns)
+        if rel is not None:
+            rel[:3, 3] *= self.odom_scale
+        return rel
+
+    def wheels(self, from_ns: int, to_ns: int) -> F64 | None:
+        """The same as measured by the wheels, without the calibrated scale."""
         if self.odom is None:
             return None
         return inverse(self.odom.at(from_ns)) @ self.odom.at(to_ns)
@@ -299,6 +309,13 @@ class _Mapper:
         self._missing_frames: set[str] = set()
         self.registered = 0
         self.in_cabin_scans = 0
+        # Since the last elevator ride: the wheels' scale, the held pose the odometry restarted
+        # from, and where the run's keyframes and scan poses begin (see `finish_run`).
+        self.wheel_scale = WheelScale(cfg.odom_scale_min_m)
+        self.wheel_totals = (0.0, 0.0)  # lidar . wheels and |wheels|^2 over finished runs
+        self._run_start: F64 | None = None
+        self._run_keyframe = 0
+        self._run_scan_pose = 0
         self.max_map_points = 0
         if motion.source != "odometry" and cfg.cabin_filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
@@ -452,6 +469,11 @@ class _Mapper:
                 information[5, 5] = min(information[5, 5], self.cfg.stairs_sigma_z_m**-2)
             self.edges.append(PoseEdge(previous.id, kf.id, measured, information, "odometry",
                                        fitness))
+            if previous.visit == kf.visit and not self._on_stairs(previous.stamp_ns, kf.stamp_ns):
+                wheels = self.motion.wheels(previous.stamp_ns, kf.stamp_ns)
+                if wheels is not None:
+                    self.wheel_scale.add(measured, wheels)
+                    self.motion.odom_scale = self.wheel_scale.value or 1.0
         self.keyframes.append(kf)
         state.keyframe = kf
         for pending_ns, pending_pose in self._pending:
@@ -473,6 +495,7 @@ class _Mapper:
                  if tr.kind == TransitionKind.ELEVATOR and previous_start <= tr.start_ns < stamp_ns]
         state.link_previous = not rides
         if rides:
+            self.finish_run()
             # The pose before the ride is still state.pose (ride scans do not move it).
             pose = state.pose if self.planar else self.motion.level(
                 state.pose, rides[-1].start_ns, rides[-1].end_ns)
@@ -484,6 +507,11 @@ class _Mapper:
             self.matcher.map.clear()
             if self.cabin is not None:
                 self.cabin.visit_started(pose)
+            # The motion prior alone carries the robot out of the cabin: its scale is calibrated
+            # again on this run's keyframes, and the way out rescaled by `finish_run`.
+            self._run_start = pose.copy()
+            self._run_keyframe = len(self.keyframes)
+            self._run_scan_pose = len(self.scan_poses)
         elif any(tr.kind == TransitionKind.STAIRS and previous_start <= tr.start_ns < stamp_ns
                  for tr in self.timeline.transitions):
             # Off the stairs: the local map holds the floor below and the steps, seen from poses
@@ -511,6 +539,43 @@ class _Mapper:
             self.scan_poses.append(ScanPose(stamp_ns, state.keyframe.id,
                                             inverse(state.keyframe.pose) @ pose))
 
+    def _on_stairs(self, from_ns: int, to_ns: int) -> bool:
+        return any(lo <= to_ns and from_ns <= hi for lo, hi in self.stair_walks)
+
+    def finish_run(self) -> None:
+        """End of a run of visits between elevator rides: rescale the way out of the cabin.
+
+        From the held pose to the run's first keyframe (the first scan outside the cabin) the
+        wheels alone moved the robot, before this run had calibrated their scale. With the scale
+        known now, the first keyframe moves to where the calibrated wheels put it; the rest of
+        the run, registered against it, moves rigidly with it; and the scans in the cabin are
+        rescaled along the way out.
+        """
+        scale = self.wheel_scale.value
+        start = self._run_start
+        dot, norm = self.wheel_totals
+        self.wheel_totals = (dot + self.wheel_scale.dot, norm + self.wheel_scale.norm)
+        self.wheel_scale = WheelScale(self.cfg.odom_scale_min_m)
+        self.motion.odom_scale = 1.0
+        self._run_start = None
+        if scale is None or start is None or self._run_keyframe >= len(self.keyframes):
+            return
+        first = self.keyframes[self._run_keyframe]
+        moved = rescale(start, first.pose, scale)
+        rigid = moved @ inverse(first.pose)
+        for index in range(self._run_scan_pose, len(self.scan_poses)):
+            sp = self.scan_poses[index]
+            if sp.keyframe == first.id and sp.stamp_ns < first.stamp_ns:
+                world = rescale(start, first.pose @ sp.relative, scale)
+                self.scan_poses[index] = ScanPose(sp.stamp_ns, sp.keyframe, inverse(moved) @ world)
+        for kf in self.keyframes[self._run_keyframe:]:
+            kf.pose = rigid @ kf.pose  # the loop search holds the same objects
+        state = self.state
+        state.pose = rigid @ state.pose
+        if state.map_pose is not None:
+            state.map_pose = rigid @ state.map_pose
+        self._pending = [(ns, rigid @ pose) for ns, pose in self._pending]
+
     def _height(self, stamp_ns: int) -> float:
         if len(self.seg.stamp_ns) == 0:
             return 0.0
@@ -524,10 +589,13 @@ class _Mapper:
             "in_cabin_scans": float(self.in_cabin_scans),
             "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
             "max_local_map_points": float(self.max_map_points),
+            "wheel_scale_dot": self.wheel_totals[0] + self.wheel_scale.dot,
+            "wheel_scale_norm": self.wheel_totals[1] + self.wheel_scale.norm,
             **_loop_counters(self.loops),
         }
 
     def result(self) -> MappingResult:
+        self.finish_run()
         if self._pending and not self.keyframes:
             self.warnings.append("no keyframe could be made: no usable lidar scans")
         elif self._pending:
@@ -579,6 +647,9 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "max_local_map_points": counters.get("max_local_map_points", 0.0),
         "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
         "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
+        # lidar ~ scale * wheels between keyframes (0: no wheel odometry or no travel)
+        "wheel_odometry_scale": (counters.get("wheel_scale_dot", 0.0) / norm
+                                 if (norm := counters.get("wheel_scale_norm", 0.0)) > 0 else 0.0),
     }
 
 # ----- parallel mapping -------------------------------------------------------------------------
@@ -658,6 +729,7 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
                                                            chunk.end_ns):
             mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
             scans += 1
+    mapper.finish_run()
     return _ChunkResult(mapper.keyframes, mapper.edges, mapper.scan_poses, mapper._pending,
                         chunk.first_visit, mapper.state.pose, scans, mapper.counters(),
                         mapper.warnings)

@@ -12,6 +12,7 @@ from mfmap.mapping.geometry import deskew, yaw_pose
 from mfmap.mapping.loops import descriptor_distance, place_descriptor
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.posegraph import optimize_poses
+from mfmap.mapping.wheelscale import WheelScale, rescale
 from mfmap.types import PoseEdge
 
 
@@ -178,3 +179,31 @@ def test_gyro_holds_the_heading_tighter_when_the_scan_sees_new_structure() -> No
     new = matcher().match(np.vstack([room, beyond]), predicted, gyro_prior=True)
     assert new.fitness < 0.9 and not new.registered
     assert np.degrees(np.arctan2(new.pose[1, 0], new.pose[0, 0])) == pytest.approx(0.15, abs=1e-9)
+
+
+def test_rescale_equals_the_chain_with_scaled_steps() -> None:
+    rng = np.random.default_rng(4)
+    start = yaw_pose(0.7, np.array([3.0, -2.0, 4.5]))
+    steps = [yaw_pose(float(rng.uniform(-0.3, 0.3)), rng.uniform(-0.5, 0.5, 3)) for _ in range(12)]
+    plain, scaled = start.copy(), start.copy()
+    for step in steps:
+        plain = plain @ step
+        longer = step.copy()
+        longer[:3, 3] *= 0.94
+        scaled = scaled @ longer
+    assert np.allclose(rescale(start, plain, 0.94), scaled, atol=1e-12)
+
+
+def test_wheel_scale_is_the_least_squares_ratio_and_waits_for_travel() -> None:
+    est = WheelScale(min_travel_m=5.0)
+    for k in range(9):
+        wheels = yaw_pose(0.0, np.array([0.6, 0.05 * k, 0.0]))
+        lidar = yaw_pose(0.0, np.array([0.6 * 0.95, 0.05 * k * 0.95, 0.0]))
+        est.add(lidar, wheels)
+        assert (est.value is None) == (est.travel_m < 5.0)
+    assert est.value == pytest.approx(0.95, abs=1e-12)
+    est.add(yaw_pose(0.5), yaw_pose(0.5, np.array([0.1, 0.0, 0.0])))  # a turn on the spot: skipped
+    assert est.value == pytest.approx(0.95, abs=1e-12)
+    wrong = WheelScale(min_travel_m=1.0)
+    wrong.add(yaw_pose(0.0, np.array([2.0, 0.0, 0.0])), yaw_pose(0.0, np.array([1.0, 0.0, 0.0])))
+    assert wrong.value is None  # twice the wheels' distance: not a radius error
