@@ -243,7 +243,9 @@ class LoopCloser:
         return LoopCheck(True, "ok", result)
 
     def _edge(self, i: int, j: int, result: Registration) -> PoseEdge:
-        sig_r = np.radians(self.cfg.loop_sigma_deg)
-        sig_t = self.cfg.loop_sigma_m
+        # Far apart, the two clouds overlap less and ICP settles off by more (see the config).
+        grow = 1.0 + self.cfg.loop_sigma_growth_per_m * float(np.linalg.norm(result.transform[:3, 3]))
+        sig_r = np.radians(self.cfg.loop_sigma_deg) * grow
+        sig_t = self.cfg.loop_sigma_m * grow
         info = np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
         return PoseEdge(i, j, result.transform, info, "loop", result.fitness)

@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from mfmap.mapping.cabin import through_box
+from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import deskew, yaw_pose
-from mfmap.mapping.loops import descriptor_distance, place_descriptor
+from mfmap.mapping.loops import LoopCloser, descriptor_distance, place_descriptor
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.posegraph import optimize_poses
+from mfmap.mapping.registration import Registration
 from mfmap.mapping.wheelscale import WheelScale, rescale
 from mfmap.types import PoseEdge
 
@@ -207,3 +209,17 @@ def test_wheel_scale_is_the_least_squares_ratio_and_waits_for_travel() -> None:
     wrong = WheelScale(min_travel_m=1.0)
     wrong.add(yaw_pose(0.0, np.array([2.0, 0.0, 0.0])), yaw_pose(0.0, np.array([1.0, 0.0, 0.0])))
     assert wrong.value is None  # twice the wheels' distance: not a radius error
+
+
+def test_loop_sigmas_grow_with_the_distance_between_its_keyframes() -> None:
+    cfg = MappingConfig(loop_sigma_m=0.01, loop_sigma_deg=0.3, loop_sigma_growth_per_m=1.0)
+    loops = LoopCloser(cfg)
+    near = loops._edge(0, 20, Registration(np.eye(4), 0.9, 0.01))
+    far = loops._edge(0, 20, Registration(yaw_pose(0.1, np.array([3.0, 0.0, 0.0])), 0.6, 0.03))
+    assert near.information[3, 3] == pytest.approx(0.01**-2)
+    assert near.information[2, 2] == pytest.approx(np.radians(0.3) ** -2)
+    # 3 m apart: every sigma four times as large.
+    assert np.allclose(np.diag(far.information), np.diag(near.information) / 16.0)
+    flat = LoopCloser(MappingConfig(loop_sigma_growth_per_m=0.0))
+    assert flat._edge(0, 20, Registration(yaw_pose(0.1, np.array([3.0, 0.0, 0.0])), 0.6, 0.03)
+                      ).information[3, 3] == pytest.approx(cfg.loop_sigma_m**-2)
