@@ -38,7 +38,7 @@ STILL_S = 1.0
 STILL_GYRO_RAD_S = 0.05
 STILL_ACCEL_STD_M_S2 = 0.1
 # Model error (cabin sway, timing) added to the white-noise sigma.
-SIGMA_FLOOR_M = 0.005
+SIGMA_FLOOR_M = 0.01
 
 
 @dataclass(frozen=True)
