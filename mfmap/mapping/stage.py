@@ -125,6 +125,16 @@ class _State:
     scan_index: int = 0
 
 
+@dataclass(frozen=True)
+class _Run:
+    """A run of visits after an elevator ride: the held pose the odometry restarted from, and
+    the indices of its first keyframe and first scan pose."""
+
+    start: F64
+    first_keyframe: int
+    first_scan_pose: int
+
+
 class MotionModel:
     """Initial guess of the motion between two scans: odometry, IMU gyro, constant velocity."""
 
@@ -309,13 +319,10 @@ class _Mapper:
         self._missing_frames: set[str] = set()
         self.registered = 0
         self.in_cabin_scans = 0
-        # Since the last elevator ride: the wheels' scale, the held pose the odometry restarted
-        # from, and where the run's keyframes and scan poses begin (see `finish_run`).
+        # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
         self.wheel_scale = WheelScale(cfg.odom_scale_min_m)
         self.wheel_totals = (0.0, 0.0)  # lidar . wheels and |wheels|^2 over finished runs
-        self._run_start: F64 | None = None
-        self._run_keyframe = 0
-        self._run_scan_pose = 0
+        self._run: _Run | None = None
         self.max_map_points = 0
         if motion.source != "odometry" and cfg.cabin_filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
@@ -509,9 +516,7 @@ class _Mapper:
                 self.cabin.visit_started(pose)
             # The motion prior alone carries the robot out of the cabin: its scale is calibrated
             # again on this run's keyframes, and the way out rescaled by `finish_run`.
-            self._run_start = pose.copy()
-            self._run_keyframe = len(self.keyframes)
-            self._run_scan_pose = len(self.scan_poses)
+            self._run = _Run(pose.copy(), len(self.keyframes), len(self.scan_poses))
         elif any(tr.kind == TransitionKind.STAIRS and previous_start <= tr.start_ns < stamp_ns
                  for tr in self.timeline.transitions):
             # Off the stairs: the local map holds the floor below and the steps, seen from poses
@@ -551,24 +556,23 @@ class _Mapper:
         the run, registered against it, moves rigidly with it; and the scans in the cabin are
         rescaled along the way out.
         """
-        scale = self.wheel_scale.value
-        start = self._run_start
+        scale, run = self.wheel_scale.value, self._run
         dot, norm = self.wheel_totals
         self.wheel_totals = (dot + self.wheel_scale.dot, norm + self.wheel_scale.norm)
         self.wheel_scale = WheelScale(self.cfg.odom_scale_min_m)
         self.motion.odom_scale = 1.0
-        self._run_start = None
-        if scale is None or start is None or self._run_keyframe >= len(self.keyframes):
+        self._run = None
+        if scale is None or run is None or run.first_keyframe >= len(self.keyframes):
             return
-        first = self.keyframes[self._run_keyframe]
-        moved = rescale(start, first.pose, scale)
+        first = self.keyframes[run.first_keyframe]
+        moved = rescale(run.start, first.pose, scale)
         rigid = moved @ inverse(first.pose)
-        for index in range(self._run_scan_pose, len(self.scan_poses)):
+        for index in range(run.first_scan_pose, len(self.scan_poses)):
             sp = self.scan_poses[index]
             if sp.keyframe == first.id and sp.stamp_ns < first.stamp_ns:
-                world = rescale(start, first.pose @ sp.relative, scale)
+                world = rescale(run.start, first.pose @ sp.relative, scale)
                 self.scan_poses[index] = ScanPose(sp.stamp_ns, sp.keyframe, inverse(moved) @ world)
-        for kf in self.keyframes[self._run_keyframe:]:
+        for kf in self.keyframes[run.first_keyframe:]:
             kf.pose = rigid @ kf.pose  # the loop search holds the same objects
         state = self.state
         state.pose = rigid @ state.pose
