@@ -62,6 +62,12 @@ class FloorsConfig(BaseModel):
     level_window_s: float = Field(
         60.0, gt=0, description="floor level before/after a transition: robust line over this much of the visit (s)"
     )
+    transition_window_s: float = Field(
+        120.0, ge=0,
+        description="height change across each transition, which places the floors: one fit over up "
+        "to this much of the raw trace on each side (a level either side, a shared drift slope, door "
+        "steps left out; s); 0: robust lines over level_window_s",
+    )
     cluster_tolerance_m: float = Field(
         1.0, gt=0, description="visits whose elevations differ by less than this are the same floor"
     )

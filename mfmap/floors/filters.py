@@ -14,6 +14,8 @@ from scipy import linalg, ndimage, signal
 F64 = npt.NDArray[np.float64]
 
 _MAD_TO_SIGMA = 1.4826
+# Half-width of the cluster that is a floor's level (door steps are 0.4 m and more).
+LEVEL_MODE_HALF_WIDTH_M = 0.2
 
 
 @dataclass(frozen=True)
@@ -300,3 +302,18 @@ def fit_ramp(
     sse = float(values @ values) - (a * r1 + b * r2)
     best = int(np.argmin(sse))
     return best, float(a[best]), float(b[best]), float(sse[best])
+
+
+def robust_level(values: F64, half_width_m: float = LEVEL_MODE_HALF_WIDTH_M) -> float:
+    """The level a stretch of height samples sits at: the densest +-half_width_m cluster.
+
+    A median is pulled by a door/HVAC step covering part of the window; the densest cluster
+    is not, as long as the floor's own level holds the most samples.
+    """
+    if values.shape[0] < 10:
+        return float(np.median(values))
+    x = np.sort(values)
+    counts = np.searchsorted(x, x + half_width_m, side="right") - np.searchsorted(x, x - half_width_m, side="left")
+    centre = x[int(np.argmax(counts))]
+    near = x[(x >= centre - half_width_m) & (x <= centre + half_width_m)]
+    return float(np.median(near))

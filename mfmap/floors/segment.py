@@ -29,17 +29,20 @@ from mfmap.baro import height_from_pressure
 from mfmap.errors import MissingDataError
 from mfmap.floors.config import FilterMethod, FloorsConfig
 from mfmap.floors.filters import (
+    LEVEL_MODE_HALF_WIDTH_M,
     Grid,
     fit_ramp,
     hampel,
     remove_transients,
     resample_uniform,
+    robust_level,
     robust_noise_sigma,
     rts_smooth,
     running_median_1s,
     sliding_mean,
     step_size,
 )
+from mfmap.floors.levels import fit_level_change, trace_of_grid
 from mfmap.floors.motion import MotionEvidence
 from mfmap.types import Floor, FloorSegmentation, PressureSeries, Transition, TransitionKind
 
@@ -58,8 +61,6 @@ _BLOCK_RUN_FRACTION = 0.15
 _NEAR_MISS_FRACTION = 0.6
 # Pressure pulses up to this fraction of a floor are doors or HVAC; taller ones are visits.
 _MAX_PULSE_FRACTION = 0.75
-# Half-width of the cluster that is a floor's level (door steps are 0.4 m and more).
-_LEVEL_MODE_HALF_WIDTH_M = 0.2
 _MOVING_FRACTION_STAIRS = 0.5
 # Chi-square gain (in units of the block noise variance) that justifies soft ramp corners.
 _SOFT_CORNER_CHI2 = 12.0
@@ -205,22 +206,7 @@ def _join_partial_runs(runs: list[_Run], trace: FilteredTrace, cfg: FloorsConfig
         del kept[k + 1]
 
 
-def robust_level(values: F64, half_width_m: float = _LEVEL_MODE_HALF_WIDTH_M) -> float:
-    """The level a stretch of height samples sits at: the densest +-half_width_m cluster.
-
-    A median is pulled by a door/HVAC step covering part of the window; the densest cluster
-    is not, as long as the floor's own level holds the most samples.
-    """
-    if values.shape[0] < 10:
-        return float(np.median(values))
-    x = np.sort(values)
-    counts = np.searchsorted(x, x + half_width_m, side="right") - np.searchsorted(x, x - half_width_m, side="left")
-    centre = x[int(np.argmax(counts))]
-    near = x[(x >= centre - half_width_m) & (x <= centre + half_width_m)]
-    return float(np.median(near))
-
-
-def robust_line_at(times_s: F64, values: F64, at_s: float, scale_m: float = _LEVEL_MODE_HALF_WIDTH_M) -> float:
+def robust_line_at(times_s: F64, values: F64, at_s: float, scale_m: float = LEVEL_MODE_HALF_WIDTH_M) -> float:
     """Height at `at_s` of a line fitted to a floor visit, door/HVAC steps weighted out.
 
     A line, because weather drift (up to 200 Pa/h, 5 mm/s apparent) moves a long visit's level;
@@ -482,6 +468,26 @@ def _solve_elevations(labels: list[int], changes: list[float]) -> F64:
     return np.concatenate(([0.0], solution))
 
 
+def _fitted_changes(grid: Grid, bounds: list[tuple[int, int]], changes: list[float], start_ns: int,
+                    window_s: float) -> list[float]:
+    """Each transition's height change from one fit over the raw trace either side
+    (`mfmap.floors.levels`); the robust lines' change where the fit does not run.
+
+    The lines fit each side on its own over the pulse-cleaned trace, whose pulse removal leaves
+    centimetres of step behind: over 420 simulated transitions they were 4.9 cm RMS off (worst
+    31 cm), the fit 1.9 cm (worst 6.5 cm). Visits are still clustered on the lines' changes.
+    """
+    trace = trace_of_grid(grid.times_s, grid.values, grid.dt_s)
+    secs = [((a - start_ns) / 1e9, (b - start_ns) / 1e9) for a, b in bounds]
+    ends = [float(grid.times_s[0])] + [b for _, b in secs]
+    starts = [a for a, _ in secs] + [float(grid.times_s[-1])]
+    out = []
+    for k, change in enumerate(changes):
+        fit = fit_level_change(trace, secs[k], (ends[k], starts[k + 1]), window_s)
+        out.append(change if fit.height_change_m is None else fit.height_change_m)
+    return out
+
+
 def _transition_kind(motion: MotionEvidence | None, start_ns: int, end_ns: int) -> TransitionKind:
     if motion is None:
         return TransitionKind.UNKNOWN
@@ -542,11 +548,6 @@ def segment_pressure(
     warnings.extend(near_misses)
 
     labels = _cluster_visits(changes, cfg.cluster_tolerance_m)
-    elevations = _solve_elevations(labels, changes)
-    # Ids from 0 = lowest; elevations relative to the start floor (label 0, solved as 0).
-    order = np.argsort(elevations, kind="stable")
-    id_of_label = np.empty_like(order)
-    id_of_label[order] = np.arange(order.shape[0])
 
     def to_ns(seconds: float) -> int:
         return int(stamp_ns[0] + round(seconds * 1e9))
@@ -563,6 +564,13 @@ def segment_pressure(
         edges = [int(stamp_ns[0])] + [x for pair in bounds for x in pair] + [int(stamp_ns[-1])]
         edges = np.maximum.accumulate(np.array(edges, dtype=np.int64)).tolist()
         bounds = [(edges[2 * k + 1], edges[2 * k + 2]) for k in range(len(bounds))]
+    if cfg.transition_window_s > 0:
+        changes = _fitted_changes(grid, bounds, changes, int(stamp_ns[0]), cfg.transition_window_s)
+    elevations = _solve_elevations(labels, changes)
+    # Ids from 0 = lowest; elevations relative to the start floor (label 0, solved as 0).
+    order = np.argsort(elevations, kind="stable")
+    id_of_label = np.empty_like(order)
+    id_of_label[order] = np.arange(order.shape[0])
     visit_edges = [int(stamp_ns[0])] + [b for pair in bounds for b in pair] + [int(stamp_ns[-1])]
     visits = [(visit_edges[2 * k], visit_edges[2 * k + 1]) for k in range(len(runs) + 1)]
 

@@ -1,17 +1,12 @@
-"""Pressure -> height for the barometric factors, and the barometer's height change across a transition."""
+"""Pressure -> height for the barometric factors (the height change across a transition is
+mfmap.floors.levels.level_change)."""
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
-from scipy import ndimage
 
 from mfmap.baro import height_from_pressure
-from mfmap.floors.filters import resample_uniform, running_median_1s
-from mfmap.floors.segment import robust_level
-from mfmap.types import F64, FloorSegmentation, PressureSeries
+from mfmap.types import F64, PressureSeries
 
 GAS_CONSTANT_DRY_AIR = 287.05  # J / (kg K)
 GRAVITY_M_S2 = 9.80665
@@ -35,113 +30,3 @@ def pressure_at(series: PressureSeries, stamps_ns: np.ndarray, window_s: float) 
     mean = (csum[hi] - csum[lo]) / np.maximum(count, 1)
     interp = np.interp(stamps.astype(np.float64), t.astype(np.float64), p)
     return np.where(count > 0, mean, interp)
-
-
-@dataclass(frozen=True)
-class LevelChange:
-    """The barometer's height change across one transition, or why there is none (`height_change_m` None)."""
-
-    height_change_m: float | None
-    sigma_m: float
-    window_s: float  # seconds of floor used on each side
-    masked_share: float  # share of those samples left out as door/HVAC steps
-    reason: str  # "ok" or why the estimate was skipped
-
-
-# A side with less floor than this gives no useful level (a transition straight after another).
-MIN_SIDE_S = 5.0
-# Residual blocks for the coloured-noise check: the noise is taken as white within a block.
-BLOCK_S = 1.0
-
-
-@dataclass(frozen=True)
-class RawTrace:
-    """The segmentation's raw heights on a uniform grid, with their 1 s running median."""
-
-    times_s: F64  # from the first sample
-    height_m: F64
-    median_m: F64
-    dt_s: float
-
-
-def raw_trace(seg: FloorSegmentation) -> RawTrace:
-    """Once per segmentation: every transition's fit reads the same grid."""
-    t_all = (seg.stamp_ns - seg.stamp_ns[0]).astype(np.float64) / 1e9
-    grid = resample_uniform(t_all, np.asarray(seg.height_raw_m, dtype=np.float64))
-    return RawTrace(grid.times_s, grid.values, running_median_1s(grid.values, grid.dt_s), grid.dt_s)
-
-
-def level_change(
-    seg: FloorSegmentation,
-    index: int,
-    window_s: float = 120.0,
-    gap_s: float = 1.0,
-    step_m: float = 0.25,
-    trace: RawTrace | None = None,
-) -> LevelChange:
-    """Height change across transition `index` from the raw barometer samples on both sides.
-
-    One least-squares fit over up to `window_s` of floor on each side (trimmed to the same
-    length, ending `gap_s` from the transition): a level before, a level after, and one shared
-    slope for the weather drift. Shared, because the weather does not change across a ride;
-    symmetric, because then a curving drift (its quadratic part) cancels in the difference.
-    Door and HVAC steps are found on the 1 s running median (a robust fit of the same model,
-    residuals over `step_m`) and left out, with a second either side. The fit runs on the raw
-    samples, not the floors stage's smoothed trace: its pulse removal leaves centimetres of step
-    behind, which a level over a minute still sees. The sigma is the fit's, scaled up when the
-    residuals are correlated over a second (a phone's barometer wanders). `trace`: the
-    segmentation's `raw_trace`, when the caller fits several transitions.
-    """
-    tr = seg.transitions[index]
-    stamp = seg.stamp_ns
-    if stamp.shape[0] < 10:
-        return LevelChange(None, 0.0, 0.0, 0.0, "too few barometer samples")
-    trace = trace if trace is not None else raw_trace(seg)
-    t, raw, med, dt = trace.times_s, trace.height_m, trace.median_m, trace.dt_s
-
-    def sec(ns: int) -> float:
-        return (ns - int(stamp[0])) / 1e9
-
-    lo = sec(seg.transitions[index - 1].end_ns) if index > 0 else t[0]
-    hi = sec(seg.transitions[index + 1].start_ns) if index + 1 < len(seg.transitions) else t[-1]
-    ta, tb = sec(tr.start_ns) - gap_s, sec(tr.end_ns) + gap_s
-    side = float(min(ta - max(lo, ta - window_s), min(hi, tb + window_s) - tb))
-    if side < MIN_SIDE_S:
-        return LevelChange(None, 0.0, max(side, 0.0), 0.0, f"less than {MIN_SIDE_S:.0f} s of floor on one side")
-    before = (t >= ta - side) & (t <= ta)
-    after = (t >= tb) & (t <= tb + side)
-    used = before | after
-    is_after = after[used].astype(np.float64)
-    design = np.stack([1.0 - is_after, is_after, t[used] - 0.5 * (ta + tb)], axis=1)
-
-    # Steps: a robust (Tukey) fit on the running median, then everything far from it.
-    y = med[used]
-    x = np.array([robust_level(med[before]), robust_level(med[after]), 0.0])
-    for _ in range(20):
-        r = y - design @ x
-        c = 4.685 * max(1.4826 * float(np.median(np.abs(r))), 0.02)
-        x = _weighted_lstsq(design, y, np.clip(1.0 - (r / c) ** 2, 0.0, None) ** 2)
-    pad = max(1, round(1.0 / dt))
-    step = ndimage.binary_dilation(np.abs(y - design @ x) > step_m, np.ones(2 * pad + 1, dtype=bool))
-    keep = ~step
-    if np.count_nonzero(keep & (is_after == 0)) < 10 or np.count_nonzero(keep & (is_after == 1)) < 10:
-        return LevelChange(None, 0.0, side, float(step.mean()), "door/HVAC steps cover one side")
-
-    a, z = design[keep], raw[used][keep]
-    x = _weighted_lstsq(a, z, np.ones(z.shape[0]))
-    resid = z - a @ x
-    var = float(resid.var())
-    per_block = max(1, round(BLOCK_S / dt))
-    n_blocks = resid.shape[0] // per_block
-    if n_blocks >= 10 and var > 0:
-        blocks = resid[: n_blocks * per_block].reshape(n_blocks, per_block).mean(axis=1)
-        var *= max(1.0, float(blocks.var()) * per_block / var)
-    cov = np.linalg.inv(a.T @ a) * var
-    sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
-    return LevelChange(float(x[1] - x[0]), sigma, side, float(step.mean()), "ok")
-
-
-def _weighted_lstsq(a: F64, y: F64, w: F64) -> F64:
-    """Weighted least squares; lstsq, so all-zero weights on one side do not raise."""
-    sw = np.sqrt(w)
-    return np.asarray(np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)[0], dtype=np.float64)

@@ -8,7 +8,7 @@ order) drifting as a random walk. Factors, by kind:
 - bias_walk: BetweenFactorDouble between consecutive biases (sigma grows with sqrt(dt));
 - elevator: x, y, yaw held across a ride, z free;
 - transition_z: the barometer's height change across a ride or a stairway (a fit on the raw trace
-  either side, mfmap.graph.barometer.level_change);
+  either side, mfmap.floors.levels.level_change);
 - imu_ride: an elevator ride's height change from the IMU (mfmap.graph.ride), z only;
 - interfloor: global registration of adjacent floors, x, y, yaw only;
 - height_tie: every keyframe of a floor at that floor's level f<id> (world z; ground robots);
@@ -30,13 +30,8 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from mfmap.graph.barometer import (
-    RawTrace,
-    level_change,
-    pressure_at,
-    pressure_to_height_m,
-    raw_trace,
-)
+from mfmap.floors.levels import RawTrace, level_change, raw_trace
+from mfmap.graph.barometer import pressure_at, pressure_to_height_m
 from mfmap.graph.config import BaroSource, GraphConfig, RobustKernel
 from mfmap.graph.interfloor import FloorMatch, register_floors
 from mfmap.graph.ride import ride_height
@@ -587,7 +582,7 @@ def _transition_height(
     seg: FloorSegmentation, index: int, config: GraphConfig, entry: dict[str, Any], trace: RawTrace | None
 ) -> tuple[float, float]:
     """The barometer's height change across transition `index` and its sigma: the fit on the raw
-    trace either side (mfmap.graph.barometer.level_change) where it runs, else the floors stage's."""
+    trace either side (mfmap.floors.levels.level_change) where it runs, else the floors stage's."""
     tr = seg.transitions[index]
     if config.transition_window_s > 0:
         fit = level_change(seg, index, config.transition_window_s, trace=trace)

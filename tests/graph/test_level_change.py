@@ -1,4 +1,4 @@
-"""The barometer's height change across a transition (mfmap.graph.barometer.level_change)."""
+"""The barometer's height change across a transition (mfmap.floors.levels.level_change)."""
 
 from __future__ import annotations
 
@@ -7,45 +7,60 @@ import dataclasses
 import numpy as np
 
 from mfmap.config import MfmapConfig
+from mfmap.floors.levels import level_change
 from mfmap.floors.segment import segment_pressure
 from mfmap.floors.synthetic import sim_barometer
-from mfmap.graph.barometer import level_change
 from mfmap.types import FloorSegmentation
 
 
-def _simulated(scenario: str, seed: int) -> tuple[FloorSegmentation, list[float]]:
+def _simulated(scenario: str, seed: int, window_s: float = 120.0) -> tuple[FloorSegmentation, list[float], dict[int, float]]:
     """The simulator's barometer alone (weather drift, wander, door/HVAC steps, noise) for one
-    route, segmented by the floors stage; with the true height change of every transition."""
+    route, segmented by the floors stage (with its fit over `window_s` either side of each
+    transition, or its robust lines for 0); with the true height change of every transition and
+    the true elevations."""
     sim = sim_barometer(scenario, seed)
-    seg = segment_pressure(sim.pressure, None, MfmapConfig().floors)
+    cfg = MfmapConfig().floors.model_copy(update={"transition_window_s": window_s})
+    seg = segment_pressure(sim.pressure, None, cfg)
     elevation = {f["id"]: f["elevation_m"] for f in sim.gt_floors["floors"]}
     truth = [elevation[t["to"]] - elevation[t["from"]] for t in sim.gt_floors["transitions"]]
     assert len(seg.transitions) == len(truth)
-    return seg, truth
+    return seg, truth, elevation
 
 
-def test_within_2_5_cm_over_seeds_and_twice_as_close_as_the_floors_stage() -> None:
-    fit_err, floors_err, z = [], [], []
+def test_within_2_5_cm_over_seeds_and_twice_as_close_as_the_robust_lines() -> None:
+    fit_err, lines_err, z, elev_err, elev_lines_err = [], [], [], [], []
     for scenario in ("two-floor", "three-floor-revisit", "stairs"):
         for seed in range(8):
-            seg, truth = _simulated(scenario, seed)
+            seg, truth, elevation = _simulated(scenario, seed)
+            lines, _, _ = _simulated(scenario, seed, window_s=0.0)
             for k, true_m in enumerate(truth):
                 fit = level_change(seg, k)
                 assert fit.reason == "ok" and fit.height_change_m is not None
+                # The floors stage carries the fit.
+                assert seg.transitions[k].height_change_m == fit.height_change_m
                 fit_err.append(fit.height_change_m - true_m)
-                floors_err.append(seg.transitions[k].height_change_m - true_m)
+                lines_err.append(lines.transitions[k].height_change_m - true_m)
                 z.append(fit_err[-1] / fit.sigma_m)
+            for ours, err in ((seg, elev_err), (lines, elev_lines_err)):
+                assert [f.id for f in ours.floors] == sorted(elevation)
+                base = elevation[ours.floor_of_sample[0]]
+                err.extend(f.elevation_m - (elevation[f.id] - base) for f in ours.floors)
     assert len(fit_err) == 8 * (1 + 3 + 2)
     rms = float(np.sqrt(np.mean(np.square(fit_err))))
-    rms_floors = float(np.sqrt(np.mean(np.square(floors_err))))
-    # Measured: 1.7 cm against the floors stage's 3.4 cm; the sigma is honest (chi2 / n 0.8).
+    rms_lines = float(np.sqrt(np.mean(np.square(lines_err))))
+    # Measured: 1.7 cm against the robust lines' 3.4 cm; the sigma is honest (chi2 / n 0.8).
     assert rms < 0.025
-    assert rms < 0.6 * rms_floors
+    assert rms < 0.6 * rms_lines
     assert 0.5 < float(np.mean(np.square(z))) < 2.0
+    # The floors' elevations (start floor at 0) follow.
+    elev_rms = float(np.sqrt(np.mean(np.square(elev_err))))
+    elev_rms_lines = float(np.sqrt(np.mean(np.square(elev_lines_err))))
+    print(f"elevations: fit {elev_rms:.4f} m, lines {elev_rms_lines:.4f} m")
+    assert elev_rms < 0.6 * elev_rms_lines
 
 
 def test_a_door_step_after_the_ride_is_left_out() -> None:
-    seg, truth = _simulated("two-floor", 0)
+    seg, truth, _ = _simulated("two-floor", 0)
     tr = seg.transitions[0]
     # A 12 Pa (about 1 m) step for 6 s, 40 s after the ride (clear of the simulator's own steps):
     # the fit leaves it out.
@@ -60,7 +75,7 @@ def test_a_door_step_after_the_ride_is_left_out() -> None:
 
 
 def test_skipped_when_one_side_has_no_floor() -> None:
-    seg, _ = _simulated("two-floor", 0)
+    seg, _, _ = _simulated("two-floor", 0)
     tr = seg.transitions[0]
     # The log ends 3 s after the ride.
     keep = seg.stamp_ns <= tr.end_ns + 3_000_000_000
