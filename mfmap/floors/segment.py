@@ -10,10 +10,11 @@ The steps, in order (`segment_pressure`):
    level changes across it by >= min_floor_height_m at a physically possible speed and
    acceleration; its start and end come from a flat-ramp-flat least-squares fit (soft corners
    for elevators), and for stairs from the odometry's standstills when the robot has them;
-4. the level change across each transition (a drift-aware robust line over each neighbouring
-   visit, steps weighted out) is what places floors, so weather drift between transitions
-   cannot move a floor; visits are clustered by chained elevation (a revisit is the same
-   floor) and the elevations are the least-squares fit of all level changes, start floor at 0.
+4. the level change across each transition is what places floors, so weather drift between
+   transitions cannot move a floor: visits are clustered by the chained changes of a drift-aware
+   robust line over each neighbouring visit (a revisit is the same floor), and the elevations
+   are the least-squares fit of every transition's change from one fit over the raw trace
+   either side (mfmap.floors.levels), start floor at 0.
 """
 
 from __future__ import annotations
