@@ -65,7 +65,14 @@ class MappingConfig(BaseModel):
     icp_gyro_low_fitness: float = Field(
         0.95, ge=0.0, le=1.0,
         description="below this registration fitness (a scan seeing much new structure) the "
-        "gyro disagreement allowed is halved",
+        "gyro disagreement allowed is halved, and the heading is blended with the gyro's",
+    )
+    icp_heading_sigma_deg: float = Field(
+        0.035, ge=0.0,
+        description="heading noise of a registration at full overlap, growing as 1 / fitness: "
+        "below icp_gyro_low_fitness a registered heading and the gyro's prediction are weighed "
+        "by their variances (the gyro's angle random walk is measured at the log's "
+        "stand-stills); 0: the registration's heading as it is",
     )
     local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
     local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")

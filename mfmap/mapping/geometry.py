@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation, Slerp
 
 from mfmap.types import F32, F64, I64, ImuSeries, OdomSeries
@@ -113,6 +116,18 @@ class PoseInterpolator:
         return cls(odom.stamp_ns, odom.xyz, odom.quat_xyzw)
 
 
+def still_mask(stamp_ns: I64, odom: OdomSeries | None, still_m_s: float = 0.005,
+               still_rad_s: float = 0.005) -> npt.NDArray[np.bool_]:
+    """Which of the stamps fall where wheel odometry says the robot stands still."""
+    if odom is None or len(odom) < 2 or len(stamp_ns) == 0:
+        return np.zeros(len(stamp_ns), dtype=bool)
+    speed = np.linalg.norm(odom.linear_m_s, axis=1)
+    turn = np.linalg.norm(odom.angular_rad_s, axis=1)
+    still = ((speed < still_m_s) & (turn < still_rad_s)).astype(np.float64)
+    at = np.interp(stamp_ns.astype(np.float64), odom.stamp_ns.astype(np.float64), still)
+    return np.asarray(at > 0.999)
+
+
 def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
               still_m_s: float = 0.005, still_rad_s: float = 0.005, min_samples: int = 50,
               window_s: float = 120.0, step_s: float = 5.0) -> F64:
@@ -126,16 +141,10 @@ def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
     without enough still samples in the log the bias is zero.
     """
     n = len(stamp_ns)
-    if odom is None or len(odom) < 2 or n == 0:
-        return np.zeros((n, 3))
-    speed = np.linalg.norm(odom.linear_m_s, axis=1)
-    turn = np.linalg.norm(odom.angular_rad_s, axis=1)
-    still = ((speed < still_m_s) & (turn < still_rad_s)).astype(np.float64)
-    t_s = (stamp_ns - stamp_ns[0]).astype(np.float64) / 1e9
-    at_imu = np.interp(stamp_ns.astype(np.float64), odom.stamp_ns.astype(np.float64), still)
-    mask = at_imu > 0.999
+    mask = still_mask(stamp_ns, odom, still_m_s, still_rad_s)
     if mask.sum() < min_samples:
         return np.zeros((n, 3))
+    t_s = (stamp_ns - stamp_ns[0]).astype(np.float64) / 1e9
     still_t = t_s[mask]
     still_rate = gyro_rad_s[mask]
     grid = np.arange(0.0, t_s[-1] + step_s, step_s)
@@ -149,6 +158,24 @@ def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
     return np.column_stack([np.interp(t_s, grid[ok], medians[:, a]) for a in range(3)])
 
 
+# A gyro's angle random walk when the log has no stand-still to measure it (0.7 deg/sqrt(h),
+# a consumer MEMS part; the simulator's is 0.012 deg/sqrt(s)).
+DEFAULT_HEADING_NOISE_RAD_SQRT_S = math.radians(0.012)
+
+
+def heading_noise(stamp_ns: I64, yaw_rate_rad_s: F64, odom: OdomSeries | None,
+                  min_samples: int = 200) -> float:
+    """The bias-corrected gyro's angle random walk about z (rad / sqrt(s)): the robust spread of
+    its rate while the robot stands still, times the square root of the sample interval."""
+    mask = still_mask(stamp_ns, odom)
+    if mask.sum() < min_samples:
+        return DEFAULT_HEADING_NOISE_RAD_SQRT_S
+    rate = yaw_rate_rad_s[mask]
+    spread = 1.4826 * float(np.median(np.abs(rate - np.median(rate))))
+    dt_s = float(np.median(np.diff(stamp_ns))) / 1e9
+    return spread * math.sqrt(max(dt_s, 0.0))
+
+
 class GyroIntegrator:
     """Rotation of the base between two times from the IMU gyro (rotated into the base frame)."""
 
@@ -158,6 +185,7 @@ class GyroIntegrator:
         gyro_base = imu.gyro_rad_s[order] @ imu_to_base[:3, :3].T
         self.bias_rad_s = gyro_bias(self.stamp_ns, gyro_base, odom)
         gyro_base = gyro_base - self.bias_rad_s
+        self.heading_noise_rad_sqrt_s = heading_noise(self.stamp_ns, gyro_base[:, 2], odom)
         dt = np.diff(self.stamp_ns).astype(np.float64) / 1e9
         # Cumulative orientation at every sample (right-multiplied body increments).
         increments = Rotation.from_rotvec(gyro_base[:-1] * dt[:, None])

@@ -82,8 +82,11 @@ class ScanMatcher:
     def __init__(self, voxel_m: float, local_map: LocalMap, threshold: AdaptiveThreshold,
                  max_iterations: int, min_fitness: float = 0.2, tolerance: float = 1e-6,
                  max_gyro_disagreement_deg: float = 0.0, max_overruled: int = 3,
-                 low_fitness: float = 0.0) -> None:
+                 low_fitness: float = 0.0, heading_sigma_deg: float = 0.0) -> None:
         self.voxel_m = voxel_m
+        self.heading_sigma_rad = math.radians(heading_sigma_deg)
+        self._heading_var: float | None = None  # of the last pose's heading (rad^2), if known
+        self.blended = 0  # registrations whose heading was blended with the gyro's
         self.max_gyro_disagreement_rad = math.radians(max_gyro_disagreement_deg)
         self.max_overruled = max_overruled
         self.low_fitness = low_fitness
@@ -96,7 +99,8 @@ class ScanMatcher:
         self.tolerance = tolerance
         self.failures = 0
 
-    def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False) -> ScanMatch:
+    def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False,
+              gyro_var_rad2: float = 0.0) -> ScanMatch:
         """Register against the local map from `predicted`.
 
         With `gyro_prior` (the predicted rotation comes from the IMU gyro over a fraction of a
@@ -107,8 +111,13 @@ class ScanMatcher:
         an error that no loop on the floor can later take out of the visit's heading. After
         `max_overruled` such scans in a row the registration is taken again, so a biased gyro
         cannot hold the odometry off the map.
+
+        Below `low_fitness`, a registration's heading is also blended with the gyro's
+        prediction (`_blend_heading`); `gyro_var_rad2` is the variance the gyro adds to the
+        predicted heading since the last registered scan.
         """
         if self.map.target is None or len(points_base) < 10:
+            self._heading_var = None  # a new map: the heading starts from the registration
             return ScanMatch(predicted, 0.0, 0.0, False)
         source = to_o3d(downsample(points_base, self.voxel_m))
         max_distance = self.threshold.value_m
@@ -117,6 +126,7 @@ class ScanMatcher:
                                    self.max_iterations, self.tolerance)
         if result.fitness < self.min_fitness:
             self.failures += 1
+            self._propagate(gyro_prior, gyro_var_rad2)
             return ScanMatch(predicted, result.fitness, result.rmse_m, False)
         correction = inverse(predicted) @ result.transform
         limit = self.max_gyro_disagreement_rad
@@ -132,10 +142,44 @@ class ScanMatcher:
             # there lost 7 cm of a 3.5 m flight).
             held = yaw_pose(yaw_rad(predicted) - yaw_rad(result.transform)) @ result.transform
             held[:3, 3] = result.transform[:3, 3]
+            self._propagate(gyro_prior, gyro_var_rad2)
             return ScanMatch(held, result.fitness, result.rmse_m, False)
         self._overruled_in_a_row = 0
         self.threshold.update(correction)
-        return ScanMatch(result.transform, result.fitness, result.rmse_m, True)
+        pose = self._blend_heading(result, predicted, gyro_prior, gyro_var_rad2)
+        return ScanMatch(pose, result.fitness, result.rmse_m, True)
+
+    def _propagate(self, gyro_prior: bool, gyro_var_rad2: float) -> None:
+        """The pose kept the prediction's heading: its variance grows by the gyro's."""
+        if self._heading_var is not None:
+            self._heading_var = self._heading_var + gyro_var_rad2 if gyro_prior else None
+
+    def _blend_heading(self, result: Registration, predicted: F64, gyro_prior: bool,
+                       gyro_var_rad2: float) -> F64:
+        """The registration's pose, its heading pulled towards the gyro's prediction by a
+        Kalman gain where the scan sees much new structure.
+
+        A registration's heading is off by about `heading_sigma_deg` / fitness, unbiased where
+        the scan overlaps the map; the prediction's is the last pose's plus the gyro's noise
+        since then. Below `low_fitness` the two are weighed by their variances: on `long`'s
+        stair-top visit, where the odometry turned 0.3 deg on its way into new corridors, this
+        took the visit's error after its loops from 5.8 to 4.6 cm (pinned to one CPU). At full
+        overlap the registration stands, so the gyro's slow drift never enters the map.
+        """
+        measured_var = (self.heading_sigma_rad / max(result.fitness, 1e-3)) ** 2
+        if (self.heading_sigma_rad <= 0 or not gyro_prior or self._heading_var is None
+                or result.fitness >= self.low_fitness):
+            self._heading_var = measured_var
+            return result.transform
+        prior_var = self._heading_var + gyro_var_rad2
+        gain = prior_var / (prior_var + measured_var)
+        self._heading_var = gain * measured_var
+        self.blended += 1
+        turn = yaw_rad(result.transform) - yaw_rad(predicted)
+        turn = (turn + math.pi) % (2.0 * math.pi) - math.pi
+        blended = yaw_pose(-(1.0 - gain) * turn) @ result.transform
+        blended[:3, 3] = result.transform[:3, 3]
+        return blended
 
     def add_keyframe(self, points_base: F64, pose: F64) -> None:
         self.map.add(transform(points_base, pose), pose[:3, 3])

@@ -135,6 +135,10 @@ class _Run:
     first_scan_pose: int
 
 
+# A MEMS gyro's scale factor is good to about half a percent.
+GYRO_SCALE_SIGMA = 0.005
+
+
 class MotionModel:
     """Initial guess of the motion between two scans: odometry, IMU gyro, constant velocity."""
 
@@ -198,6 +202,15 @@ class MotionModel:
         if self.gyro is not None and self.gyro.covers(state.stamp_ns) and self.gyro.covers(stamp_ns):
             delta[:3, :3] = self.gyro.delta(state.stamp_ns, stamp_ns)
         return delta
+
+    def heading_var(self, dt_s: float, turn_rad: float) -> float:
+        """Variance (rad^2) the gyro adds to a heading predicted over dt_s with this much turn:
+        its angle random walk, measured at the log's stand-stills, and a scale factor good to
+        GYRO_SCALE_SIGMA."""
+        if self.gyro is None:
+            return 0.0
+        return (self.gyro.heading_noise_rad_sqrt_s ** 2 * max(dt_s, 0.0)
+                + (GYRO_SCALE_SIGMA * turn_rad) ** 2)
 
     def rotation_from_gyro(self, from_ns: int | None, to_ns: int) -> bool:
         """Whether `predict` took the rotation from from_ns to to_ns from the gyro."""
@@ -303,8 +316,10 @@ class _Mapper:
             self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
                                        cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
                                        max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
-                                       low_fitness=cfg.icp_gyro_low_fitness)
+                                       low_fitness=cfg.icp_gyro_low_fitness,
+                                       heading_sigma_deg=cfg.icp_heading_sigma_deg)
         self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
+        self._registered: tuple[int, F64] | None = None  # stamp and pose of the last registered scan
         # Stair walks, widened: the floors stage places their ends to within a second or two.
         margin_ns = 3_000_000_000
         self.stair_walks = [(tr.start_ns - margin_ns, tr.end_ns + margin_ns)
@@ -406,12 +421,19 @@ class _Mapper:
         if isinstance(self.matcher, ScanMatcher):
             # Not on stairs: every scan there sees new steps (fitness < 0.95), and holding the
             # heading to the gyro left the climb 6 cm short of a 3.5 m flight.
-            match = self.matcher.match(points, predicted, gyro_prior=not on_stairs and
-                                       self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
+            gyro_prior = not on_stairs and self.motion.rotation_from_gyro(state.stamp_ns, ref_ns)
+            gyro_var = 0.0
+            if gyro_prior and self._registered is not None:
+                since_ns, since_pose = self._registered
+                gyro_var = self.motion.heading_var((ref_ns - since_ns) / 1e9,
+                                                   rotation_angle_rad(inverse(since_pose) @ predicted))
+            match = self.matcher.match(points, predicted, gyro_prior=gyro_prior,
+                                       gyro_var_rad2=gyro_var)
         else:
             match = self.matcher.match(points, predicted)
         if match.registered:
             self.registered += 1
+            self._registered = (ref_ns, match.pose)
         pose = match.pose
         if self._needs_keyframe(pose):
             self._keyframe(ref_ns, points, pose, match.fitness, match.rmse_m,
@@ -588,6 +610,7 @@ class _Mapper:
     def counters(self) -> dict[str, float]:
         return {
             "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
+            "heading_blended": float(getattr(self.matcher, "blended", 0)),
             "registered": float(self.registered),
             "registration_failures": float(self.matcher.failures),
             "in_cabin_scans": float(self.in_cabin_scans),
@@ -644,6 +667,7 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "registered": counters.get("registered", 0.0),
         "registration_failures": counters.get("registration_failures", 0.0),
         "gyro_overruled": counters.get("gyro_overruled", 0.0),
+        "heading_blended": counters.get("heading_blended", 0.0),
         "keyframes": float(len(keyframes)),
         "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),

@@ -223,3 +223,59 @@ def test_loop_sigmas_grow_with_the_distance_between_its_keyframes() -> None:
     flat = LoopCloser(MappingConfig(loop_sigma_growth_per_m=0.0))
     assert flat._edge(0, 20, Registration(yaw_pose(0.1, np.array([3.0, 0.0, 0.0])), 0.6, 0.03)
                       ).information[3, 3] == pytest.approx(cfg.loop_sigma_m**-2)
+
+
+def test_a_low_overlap_heading_is_blended_with_the_gyro_by_their_variances() -> None:
+    """Below the low-fitness mark the registered heading moves towards the prediction by the
+    Kalman gain of the two variances; at full overlap the registration stands."""
+    sigma_deg, gyro_var = 0.035, np.radians(0.01) ** 2
+    matcher = ScanMatcher(0.25, LocalMap(0.15, 30, 30.0), AdaptiveThreshold(1.0, 0.0, 40.0, 0.4), 30,
+                          low_fitness=0.95, heading_sigma_deg=sigma_deg)
+    predicted = np.eye(4)
+    registered = yaw_pose(np.radians(0.1), np.array([0.3, -0.2, 0.0]))
+
+    def blend(fitness: float) -> float:
+        pose = matcher._blend_heading(Registration(registered, fitness, 0.01), predicted, True, gyro_var)
+        np.testing.assert_allclose(pose[:3, 3], registered[:3, 3])  # the position stands
+        return float(np.degrees(np.arctan2(pose[1, 0], pose[0, 0])))
+
+    assert blend(0.98) == pytest.approx(0.1, abs=1e-12)  # full overlap: the registration
+    held_var = np.radians(sigma_deg / 0.98) ** 2
+    # A third of the scan new: the gain of the prediction's variance (the last heading's plus
+    # the gyro's) against the registration's, which grows as 1 / fitness.
+    measured_var = np.radians(sigma_deg / 0.7) ** 2
+    gain = (held_var + gyro_var) / (held_var + gyro_var + measured_var)
+    assert blend(0.7) == pytest.approx(0.1 * gain, abs=1e-9)
+    assert 0.3 < gain < 0.4
+    assert matcher.blended == 1
+    # The blended heading's variance is smaller than either: the next low-overlap scan trusts
+    # the prediction more.
+    second_gain = (gain * measured_var + gyro_var) / (gain * measured_var + gyro_var + measured_var)
+    assert blend(0.7) == pytest.approx(0.1 * second_gain, abs=1e-9)
+    assert second_gain < gain
+    # Off: the registration as it is.
+    off = ScanMatcher(0.25, LocalMap(0.15, 30, 30.0), AdaptiveThreshold(1.0, 0.0, 40.0, 0.4), 30,
+                      low_fitness=0.95, heading_sigma_deg=0.0)
+    off._heading_var = 1e-9
+    np.testing.assert_array_equal(off._blend_heading(Registration(registered, 0.7, 0.01), predicted, True,
+                                                     gyro_var), registered)
+
+
+def test_the_gyros_angle_random_walk_is_measured_at_the_stand_stills() -> None:
+    """White rate noise of 0.003 rad/s at 200 Hz is 0.012 deg/sqrt(s) of heading random walk."""
+    from mfmap.mapping.geometry import DEFAULT_HEADING_NOISE_RAD_SQRT_S, heading_noise
+    from mfmap.types import OdomSeries
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 120.0, 0.005)
+    still = (t >= 20) & (t < 50)
+    rate = rng.normal(0.0, 0.003, len(t)) + np.where(still, 0.0, 0.3)  # turning when not still
+    stamps = (np.round(t * 1e9)).astype(np.int64)
+    k = slice(None, None, 4)
+    speed = np.where(still, 0.0, 0.5)[k]
+    odom = OdomSeries(stamps[k], np.zeros((len(speed), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(speed), 1)),
+                      np.column_stack([speed, np.zeros((len(speed), 2))]), np.zeros((len(speed), 3)))
+    arw = heading_noise(stamps, rate, odom)
+    assert np.degrees(arw) == pytest.approx(np.degrees(0.003 * np.sqrt(0.005)), rel=0.05)
+    # No stand-still in the log: a consumer MEMS gyro's figure.
+    assert heading_noise(stamps, rate, None) == DEFAULT_HEADING_NOISE_RAD_SQRT_S
