@@ -13,7 +13,7 @@ from scipy import linalg, ndimage, signal
 
 F64 = npt.NDArray[np.float64]
 
-_MAD_TO_SIGMA = 1.4826
+MAD_TO_SIGMA = 1.4826
 # Half-width of the cluster that is a floor's level (door steps are 0.4 m and more).
 LEVEL_MODE_HALF_WIDTH_M = 0.2
 
@@ -49,7 +49,7 @@ def robust_noise_sigma(values: F64, lag: int = 1) -> float:
     if values.shape[0] < lag + 2:
         return 0.0
     d = values[lag:] - values[:-lag]
-    return float(_MAD_TO_SIGMA * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    return float(MAD_TO_SIGMA * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
 
 
 def hampel(values: F64, half_window: int, threshold_sigma: float) -> tuple[F64, int]:
@@ -61,7 +61,7 @@ def hampel(values: F64, half_window: int, threshold_sigma: float) -> tuple[F64, 
     size = 2 * max(1, half_window) + 1
     med = ndimage.median_filter(values, size=size, mode="nearest")
     dev = np.abs(values - med)
-    local = _MAD_TO_SIGMA * ndimage.median_filter(dev, size=size, mode="nearest")
+    local = MAD_TO_SIGMA * ndimage.median_filter(dev, size=size, mode="nearest")
     sigma = np.maximum(local, robust_noise_sigma(values))
     spikes = dev > threshold_sigma * np.maximum(sigma, 1e-9)
     out = np.where(spikes, med, values)
@@ -203,7 +203,7 @@ def remove_transients(
     if median is None:
         median = running_median_1s(values, dt_s)
     lagged = median[med_size:] - median[:-med_size]
-    sigma = _MAD_TO_SIGMA * float(np.median(np.abs(lagged - np.median(lagged)))) / np.sqrt(2.0)
+    sigma = MAD_TO_SIGMA * float(np.median(np.abs(lagged - np.median(lagged)))) / np.sqrt(2.0)
 
     def erode(x: F64) -> F64:
         return np.asarray(ndimage.minimum_filter1d(x, size, mode="nearest"), dtype=np.float64)

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from mfmap.floors.filters import resample_uniform, robust_level, running_median_1s
+from mfmap.floors.filters import (
+    MAD_TO_SIGMA,
+    Grid,
+    resample_uniform,
+    robust_level,
+    running_median_1s,
+)
 from mfmap.types import F64, FloorSegmentation
 
 
@@ -47,11 +53,12 @@ def raw_trace(seg: FloorSegmentation) -> RawTrace:
     """Once per segmentation: every transition's fit reads the same grid."""
     t_all = (seg.stamp_ns - seg.stamp_ns[0]).astype(np.float64) / 1e9
     grid = resample_uniform(t_all, np.asarray(seg.height_raw_m, dtype=np.float64))
-    return trace_of_grid(grid.times_s, grid.values, grid.dt_s)
+    return trace_of_grid(grid)
 
 
-def trace_of_grid(times_s: F64, height_m: F64, dt_s: float) -> RawTrace:
-    return RawTrace(times_s, height_m, running_median_1s(height_m, dt_s), dt_s)
+def trace_of_grid(grid: Grid) -> RawTrace:
+    """The raw heights resampled on a uniform grid, with their 1 s running median."""
+    return RawTrace(grid.times_s, grid.values, running_median_1s(grid.values, grid.dt_s), grid.dt_s)
 
 
 def level_change(
@@ -121,7 +128,7 @@ def fit_level_change(
     x = np.array([robust_level(med[before]), robust_level(med[after]), 0.0])
     for _ in range(20):
         r = y - design @ x
-        c = 4.685 * max(1.4826 * float(np.median(np.abs(r))), 0.02)
+        c = 4.685 * max(MAD_TO_SIGMA * float(np.median(np.abs(r))), 0.02)
         x = _weighted_lstsq(design, y, np.clip(1.0 - (r / c) ** 2, 0.0, None) ** 2)
     pad = max(1, round(1.0 / dt))
     step = ndimage.binary_dilation(np.abs(y - design @ x) > step_m, np.ones(2 * pad + 1, dtype=bool))

@@ -128,11 +128,11 @@ def still_mask(stamp_ns: I64, odom: OdomSeries | None, still_m_s: float = 0.005,
     return np.asarray(at > 0.999)
 
 
-def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
-              still_m_s: float = 0.005, still_rad_s: float = 0.005, min_samples: int = 50,
+def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, still: npt.NDArray[np.bool_], min_samples: int = 50,
               window_s: float = 120.0, step_s: float = 5.0) -> F64:
     """Gyro bias at every sample, (n, 3): the median rate while wheel odometry says the robot
-    stands still (zero-velocity updates), over the still samples within window_s / 2 of it.
+    stands still (`still`, from `still_mask`: zero-velocity updates), over the still samples
+    within window_s / 2 of it.
 
     A 0.1 deg/s bias is 1 deg after a 10 s turn in an elevator cabin, where lidar cannot help.
     A MEMS gyro's bias also wanders: one median over a whole log was 4e-4 rad/s off at some
@@ -141,12 +141,11 @@ def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
     without enough still samples in the log the bias is zero.
     """
     n = len(stamp_ns)
-    mask = still_mask(stamp_ns, odom, still_m_s, still_rad_s)
-    if mask.sum() < min_samples:
+    if still.sum() < min_samples:
         return np.zeros((n, 3))
     t_s = (stamp_ns - stamp_ns[0]).astype(np.float64) / 1e9
-    still_t = t_s[mask]
-    still_rate = gyro_rad_s[mask]
+    still_t = t_s[still]
+    still_rate = gyro_rad_s[still]
     grid = np.arange(0.0, t_s[-1] + step_s, step_s)
     lo = np.searchsorted(still_t, grid - window_s / 2.0, side="left")
     hi = np.searchsorted(still_t, grid + window_s / 2.0, side="right")
@@ -163,14 +162,14 @@ def gyro_bias(stamp_ns: I64, gyro_rad_s: F64, odom: OdomSeries | None,
 DEFAULT_HEADING_NOISE_RAD_SQRT_S = math.radians(0.012)
 
 
-def heading_noise(stamp_ns: I64, yaw_rate_rad_s: F64, odom: OdomSeries | None,
+def heading_noise(stamp_ns: I64, yaw_rate_rad_s: F64, still: npt.NDArray[np.bool_],
                   min_samples: int = 200) -> float:
     """The bias-corrected gyro's angle random walk about z (rad / sqrt(s)): the robust spread of
-    its rate while the robot stands still, times the square root of the sample interval."""
-    mask = still_mask(stamp_ns, odom)
-    if mask.sum() < min_samples:
+    its rate while the robot stands still (`still`, from `still_mask`), times the square root of
+    the sample interval."""
+    if still.sum() < min_samples:
         return DEFAULT_HEADING_NOISE_RAD_SQRT_S
-    rate = yaw_rate_rad_s[mask]
+    rate = yaw_rate_rad_s[still]
     spread = 1.4826 * float(np.median(np.abs(rate - np.median(rate))))
     dt_s = float(np.median(np.diff(stamp_ns))) / 1e9
     return spread * math.sqrt(max(dt_s, 0.0))
@@ -183,9 +182,10 @@ class GyroIntegrator:
         order = np.argsort(imu.stamp_ns, kind="stable")
         self.stamp_ns = imu.stamp_ns[order]
         gyro_base = imu.gyro_rad_s[order] @ imu_to_base[:3, :3].T
-        self.bias_rad_s = gyro_bias(self.stamp_ns, gyro_base, odom)
+        still = still_mask(self.stamp_ns, odom)
+        self.bias_rad_s = gyro_bias(self.stamp_ns, gyro_base, still)
         gyro_base = gyro_base - self.bias_rad_s
-        self.heading_noise_rad_sqrt_s = heading_noise(self.stamp_ns, gyro_base[:, 2], odom)
+        self.heading_noise_rad_sqrt_s = heading_noise(self.stamp_ns, gyro_base[:, 2], still)
         dt = np.diff(self.stamp_ns).astype(np.float64) / 1e9
         # Cumulative orientation at every sample (right-multiplied body increments).
         increments = Rotation.from_rotvec(gyro_base[:-1] * dt[:, None])

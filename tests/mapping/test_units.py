@@ -263,7 +263,7 @@ def test_a_low_overlap_heading_is_blended_with_the_gyro_by_their_variances() -> 
 
 def test_the_gyros_angle_random_walk_is_measured_at_the_stand_stills() -> None:
     """White rate noise of 0.003 rad/s at 200 Hz is 0.012 deg/sqrt(s) of heading random walk."""
-    from mfmap.mapping.geometry import DEFAULT_HEADING_NOISE_RAD_SQRT_S, heading_noise
+    from mfmap.mapping.geometry import DEFAULT_HEADING_NOISE_RAD_SQRT_S, heading_noise, still_mask
     from mfmap.types import OdomSeries
 
     rng = np.random.default_rng(5)
@@ -275,7 +275,7 @@ def test_the_gyros_angle_random_walk_is_measured_at_the_stand_stills() -> None:
     speed = np.where(still, 0.0, 0.5)[k]
     odom = OdomSeries(stamps[k], np.zeros((len(speed), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(speed), 1)),
                       np.column_stack([speed, np.zeros((len(speed), 2))]), np.zeros((len(speed), 3)))
-    arw = heading_noise(stamps, rate, odom)
+    arw = heading_noise(stamps, rate, still_mask(stamps, odom))
     assert np.degrees(arw) == pytest.approx(np.degrees(0.003 * np.sqrt(0.005)), rel=0.05)
     # No stand-still in the log: a consumer MEMS gyro's figure.
-    assert heading_noise(stamps, rate, None) == DEFAULT_HEADING_NOISE_RAD_SQRT_S
+    assert heading_noise(stamps, rate, still_mask(stamps, None)) == DEFAULT_HEADING_NOISE_RAD_SQRT_S
