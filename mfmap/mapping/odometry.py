@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,8 +83,11 @@ class ScanMatcher:
     def __init__(self, voxel_m: float, local_map: LocalMap, threshold: AdaptiveThreshold,
                  max_iterations: int, min_fitness: float = 0.2, tolerance: float = 1e-6,
                  max_gyro_disagreement_deg: float = 0.0, max_overruled: int = 3,
-                 low_fitness: float = 0.0, heading_sigma_deg: float = 0.0) -> None:
+                 low_fitness: float = 0.0, heading_sigma_deg: float = 0.0,
+                 fine_kernel_m: float = 0.0) -> None:
         self.voxel_m = voxel_m
+        self.fine_kernel_m = fine_kernel_m
+        self.refined = 0  # registrations refined with the fine kernel
         self.heading_sigma_rad = math.radians(heading_sigma_deg)
         self._heading_var: float | None = None  # of the last pose's heading (rad^2), if known
         self.blended = 0  # registrations whose heading was blended with the gyro's
@@ -100,7 +104,8 @@ class ScanMatcher:
         self.failures = 0
 
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False,
-              gyro_var_rad2: float = 0.0) -> ScanMatch:
+              gyro_var_rad2: float = 0.0,
+              refine: Callable[[F64], bool] | None = None) -> ScanMatch:
         """Register against the local map from `predicted`.
 
         With `gyro_prior` (the predicted rotation comes from the IMU gyro over a fraction of a
@@ -115,6 +120,16 @@ class ScanMatcher:
         Below `low_fitness`, a registration's heading is also blended with the gyro's
         prediction (`_blend_heading`); `gyro_var_rad2` is the variance the gyro adds to the
         predicted heading since the last registered scan.
+
+        With `fine_kernel_m`, a registration for which `refine(pose)` holds (the mapping stage
+        asks whether the pose starts a keyframe; None: every one) gets a second ICP pass from
+        its result with a Tukey kernel at the lidar's noise. The first pass's kernel, a third of
+        the correspondence threshold, is wide enough to bring in a start some centimetres off,
+        but it lets points near corners and at the edges of what the map has seen pull the scan
+        about a millimetre back along the way the robot drives; through the keyframes a metre
+        apart, that made the maps 0.05-0.2 % short. Only keyframes are refined: they are what
+        the map and the pose graph are built from, and each pass builds the target's k-d tree
+        again (about two thirds of an ICP call's time).
         """
         if self.map.target is None or len(points_base) < 10:
             self._heading_var = None  # a new map: the heading starts from the registration
@@ -124,6 +139,13 @@ class ScanMatcher:
         result: Registration = icp(source, self.map.target, predicted, max_distance,
                                    max(max_distance / 3.0, 0.5 * self.voxel_m),
                                    self.max_iterations, self.tolerance)
+        if (self.fine_kernel_m > 0 and result.fitness >= self.min_fitness
+                and (refine is None or refine(result.transform))):
+            # The same correspondences, a kernel at the lidar's noise (see `fine_kernel_m`).
+            fine = icp(source, self.map.target, result.transform, max_distance,
+                       self.fine_kernel_m, self.max_iterations, self.tolerance)
+            result = Registration(fine.transform, result.fitness, result.rmse_m)
+            self.refined += 1
         if result.fitness < self.min_fitness:
             self.failures += 1
             self._propagate(gyro_prior, gyro_var_rad2)

@@ -317,7 +317,8 @@ class _Mapper:
                                        cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
                                        max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
                                        low_fitness=cfg.icp_gyro_low_fitness,
-                                       heading_sigma_deg=cfg.icp_heading_sigma_deg)
+                                       heading_sigma_deg=cfg.icp_heading_sigma_deg,
+                                       fine_kernel_m=cfg.icp_fine_kernel_m)
         self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
         self._registered: tuple[int, F64] | None = None  # stamp and pose of the last registered scan
         # Stair walks, widened: the floors stage places their ends to within a second or two.
@@ -428,7 +429,7 @@ class _Mapper:
                 gyro_var = self.motion.heading_var((ref_ns - since_ns) / 1e9,
                                                    rotation_angle_rad(inverse(since_pose) @ predicted))
             match = self.matcher.match(points, predicted, gyro_prior=gyro_prior,
-                                       gyro_var_rad2=gyro_var)
+                                       gyro_var_rad2=gyro_var, refine=self._needs_keyframe)
         else:
             match = self.matcher.match(points, predicted)
         if match.registered:
@@ -611,6 +612,7 @@ class _Mapper:
         return {
             "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
             "heading_blended": float(getattr(self.matcher, "blended", 0)),
+            "registrations_refined": float(getattr(self.matcher, "refined", 0)),
             "registered": float(self.registered),
             "registration_failures": float(self.matcher.failures),
             "in_cabin_scans": float(self.in_cabin_scans),
@@ -668,6 +670,7 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "registration_failures": counters.get("registration_failures", 0.0),
         "gyro_overruled": counters.get("gyro_overruled", 0.0),
         "heading_blended": counters.get("heading_blended", 0.0),
+        "registrations_refined": counters.get("registrations_refined", 0.0),
         "keyframes": float(len(keyframes)),
         "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),
