@@ -68,10 +68,13 @@ class Map2D:
 
 
 def icp_2d(source: F64, target: Map2D, x: float, y: float, yaw: float, max_distance_m: float,
-           iterations: int) -> tuple[float, float, float, float, float]:
-    """Gauss-Newton point-to-line ICP with Tukey weights; (x, y, yaw, fitness, rmse)."""
+           iterations: int, kernel_m: float = 0.0) -> tuple[float, float, float, float, float]:
+    """Gauss-Newton point-to-line ICP with Tukey weights; (x, y, yaw, fitness, rmse).
+
+    The kernel is `kernel_m`, or a third of the correspondence distance when 0.
+    """
     assert target.tree is not None
-    kernel = max_distance_m / 3.0
+    kernel = kernel_m or max_distance_m / 3.0
     fitness, rmse = 0.0, 0.0
     for _ in range(iterations):
         c, s = np.cos(yaw), np.sin(yaw)
@@ -105,8 +108,11 @@ class Scan2DMatcher:
     """Registers planar scans (base frame, z ignored) against a local 2D map."""
 
     def __init__(self, voxel_m: float, map_voxel_m: float, max_keyframes: int,
-                 threshold: AdaptiveThreshold, max_iterations: int, min_fitness: float = 0.3) -> None:
+                 threshold: AdaptiveThreshold, max_iterations: int, min_fitness: float = 0.3,
+                 fine_kernel_m: float = 0.0) -> None:
         self.voxel_m = voxel_m
+        self.fine_kernel_m = fine_kernel_m
+        self.refined = 0
         self.map = Map2D(map_voxel_m, max_keyframes)
         self.threshold = threshold
         self.max_iterations = max_iterations
@@ -123,6 +129,12 @@ class Scan2DMatcher:
         if fitness < self.min_fitness:
             self.failures += 1
             return ScanMatch(predicted, fitness, rmse, False)
+        if self.fine_kernel_m > 0:
+            # A last pass at the lidar's noise, as `odometry.ScanMatcher` does; the map's k-d
+            # tree is kept, so every scan gets it.
+            x, y, yaw, _, _ = icp_2d(source, self.map, x, y, yaw, self.threshold.value_m,
+                                     self.max_iterations, self.fine_kernel_m)
+            self.refined += 1
         pose = yaw_pose(yaw, np.array([x, y, predicted[2, 3]]))
         self.threshold.update(inverse(predicted) @ pose)
         return ScanMatch(pose, fitness, rmse, True)

@@ -311,7 +311,8 @@ class _Mapper:
         if planar:
             self.matcher = Scan2DMatcher(cfg.voxel_size_m, cfg.map_voxel_size_m,
                                          cfg.local_map_keyframes, self.threshold,
-                                         cfg.icp_max_iterations)
+                                         cfg.icp_max_iterations,
+                                         fine_kernel_m=cfg.icp_fine_kernel_m)
         else:
             self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
                                        cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
