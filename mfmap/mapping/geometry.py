@@ -8,6 +8,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation, Slerp
 
+from mfmap.floors.filters import MAD_TO_SIGMA
 from mfmap.types import F32, F64, I64, ImuSeries, OdomSeries
 
 _RECENT = 8  # poses remembered per interpolator (stamps asked for again soon)
@@ -170,7 +171,7 @@ def heading_noise(stamp_ns: I64, yaw_rate_rad_s: F64, still: npt.NDArray[np.bool
     if still.sum() < min_samples:
         return DEFAULT_HEADING_NOISE_RAD_SQRT_S
     rate = yaw_rate_rad_s[still]
-    spread = 1.4826 * float(np.median(np.abs(rate - np.median(rate))))
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(rate - np.median(rate))))
     dt_s = float(np.median(np.diff(stamp_ns))) / 1e9
     return spread * math.sqrt(max(dt_s, 0.0))
 

@@ -613,7 +613,7 @@ class _Mapper:
         return {
             "gyro_overruled": float(getattr(self.matcher, "overruled", 0)),
             "heading_blended": float(getattr(self.matcher, "blended", 0)),
-            "registrations_refined": float(getattr(self.matcher, "refined", 0)),
+            "registrations_refined": float(self.matcher.refined),
             "registered": float(self.registered),
             "registration_failures": float(self.matcher.failures),
             "in_cabin_scans": float(self.in_cabin_scans),
