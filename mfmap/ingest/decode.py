@@ -544,3 +544,45 @@ def parse_pointcloud2(data: bytes | memoryview, encoding: str, where: str = "") 
         is_dense=is_dense,
         layout_key=wire.key,
     )
+
+
+_DOUBLES: dict[tuple[str, int], struct.Struct] = {}
+
+
+def parse_stamped_doubles(
+    data: bytes | memoryview, encoding: str, n_doubles: int, child_frame: bool = False
+) -> tuple[int, str, str, tuple[float, ...]]:
+    """A serialised message that is a std_msgs/Header, for nav_msgs/Odometry a child_frame_id,
+    then only float64 fields (sensor_msgs/Imu: 37, sensor_msgs/FluidPressure: 2,
+    nav_msgs/Odometry: 85): (header stamp in ns, frame_id, child_frame_id, the doubles).
+
+    About twenty times faster than the generic deserialiser, which builds a message object per
+    sample: an hour of 200 Hz IMU is 720 000 of them. Raises IndexError or struct.error when
+    the bytes end early.
+    """
+    buf = memoryview(data).cast("B")
+    if encoding == "cdr":
+        if len(buf) < 4:
+            raise IndexError("shorter than the CDR header")
+        order = "<" if buf[1] & 1 else ">"
+        c = _Cursor(buf, 4, order, 4, aligned=True)
+        sec = struct.unpack_from(order + "i", buf, c.pos)[0]
+        c.pos += 4
+        nanosec = c.u32()
+        frame = c.string(nul=True)
+        child = c.string(nul=True) if child_frame else ""
+        c.align(8)
+    elif encoding == "ros1":
+        order = "<"
+        c = _Cursor(buf, 0, order, 0, aligned=False)
+        c.u32()  # seq
+        sec, nanosec = c.u32(), c.u32()
+        frame = c.string(nul=False)
+        child = c.string(nul=False) if child_frame else ""
+    else:
+        raise ValueError(f"cannot parse encoding '{encoding}'")
+    block = _DOUBLES.get((order, n_doubles))
+    if block is None:
+        block = _DOUBLES[(order, n_doubles)] = struct.Struct(f"{order}{n_doubles}d")
+    values = block.unpack_from(buf, c.pos)
+    return int(sec) * 1_000_000_000 + int(nanosec), frame, child, values

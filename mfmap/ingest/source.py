@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import heapq
 import logging
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,7 @@ from mfmap.ingest.decode import (
     decode_laserscan,
     decode_pointcloud2,
     parse_pointcloud2,
+    parse_stamped_doubles,
     pressure_unit,
     stamp_ns_of,
     transform_matrix,
@@ -101,6 +103,25 @@ class _Rows:
             row = ()
         self.stamps.append(stamp_ns)
         self.values.append(row)
+
+    def add_row(self, stamp_ns: int, row: tuple[float, ...], frame: str, child: str) -> None:
+        """A message read by the direct parser (`_FLAT`), as `add` would have kept it."""
+        if not self.stamps:
+            self.frame, self.child = frame, child
+        self.stamps.append(stamp_ns)
+        self.values.append(row)
+
+
+# Small streams whose messages are a header (and odometry's child_frame_id) and then only
+# float64 fields, read by the direct parser: role -> (number of doubles, has a child frame,
+# `_Rows.add`'s row from the doubles). sensor_msgs/Imu: orientation (0-3), its covariance (4-12),
+# angular velocity (13-15), ..., linear acceleration (25-27); nav_msgs/Odometry: pose (0-6),
+# its covariance (7-42), twist (43-48).
+_FLAT: dict[Role, tuple[int, bool, Callable[[tuple[float, ...]], tuple[float, ...]]]] = {
+    Role.IMU: (37, False, lambda d: (d[13], d[14], d[15], d[25], d[26], d[27], d[0], d[1], d[2], d[3], d[4])),
+    Role.BARO: (2, False, lambda d: (d[0],)),
+    Role.ODOM: (85, True, lambda d: d[0:7] + d[43:49]),
+}
 
 
 def _open_backend(path: Path) -> Backend:
@@ -437,22 +458,48 @@ class LogSource:
             return self._small
         topics = {self.roles[r]: r for r in _SMALL_ROLES if r in self.roles}
         out: dict[Role, _Rows] = {role: _Rows() for role in topics.values()}
+        direct: dict[str, bool] = {}  # topic -> the direct parser agreed on its first message
         for raw in self._backend.iter_raw(list(topics), None, None):
             role = topics[raw.topic]
             rows = out[role]
             if rows.error is not None:
                 continue
             try:
+                if role in _FLAT:
+                    if raw.topic not in direct:
+                        direct[raw.topic] = self._direct_agrees(raw, role)
+                    if direct[raw.topic]:
+                        n_doubles, child_frame, pick = _FLAT[role]
+                        encoding, data = self._backend.serialized(raw)
+                        stamp_ns, frame, child, doubles = parse_stamped_doubles(
+                            data, encoding, n_doubles, child_frame)
+                        rows.add_row(stamp_ns or int(raw.log_time_ns), pick(doubles), frame, child)
+                        continue
                 msg = self._backend.deserialize(raw)
                 rows.add(role, msg, stamp_ns_of(msg, raw.log_time_ns))
             except DecodeError as err:
                 rows.error = err
-            except (AttributeError, TypeError, ValueError, IndexError) as err:
+            except (AttributeError, TypeError, ValueError, IndexError, struct.error) as err:
                 rows.error = DecodeError(
                     f"unexpected {ROLE_TYPE[role]} layout ({err})", f"{self.path} topic {raw.topic}"
                 )
         self._small = out
         return out
+
+    def _direct_agrees(self, raw: RawMessage, role: Role) -> bool:
+        """Does the direct parser read this message exactly as the generic deserialiser does?
+        (Not for a message type of the same name with other fields: then the generic one.)"""
+        n_doubles, child_frame, pick = _FLAT[role]
+        try:
+            encoding, data = self._backend.serialized(raw)
+            stamp_ns, frame, child, doubles = parse_stamped_doubles(data, encoding, n_doubles, child_frame)
+            msg = self._backend.deserialize(raw)
+            reference = _Rows()
+            reference.add(role, msg, stamp_ns_of(msg, raw.log_time_ns))
+        except Exception:  # any failure: the generic path decides (and reports it)
+            return False
+        return (reference.stamps == [stamp_ns or int(raw.log_time_ns)] and reference.values == [pick(doubles)]
+                and (reference.frame, reference.child) == (frame, child))
 
     def _rows(self, role: Role) -> _Rows | None:
         rows = self._small_streams().get(role)

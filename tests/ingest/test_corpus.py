@@ -14,10 +14,12 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import numpy as np
 import yaml
 
+import mfmap.ingest.source as source
 from mfmap.errors import DecodeError, MfmapError
 from mfmap.ingest import open_log
 from mfmap.ingest.decode import decode_pointcloud2
@@ -41,6 +43,7 @@ class Walk:
     decoded_messages: int = 0
     clouds_checked: int = 0
     series_read: int = 0
+    small_checked: int = 0  # barometer/IMU/odometry messages read directly, checked against rosbags
 
 
 def corpus_items(root: Path) -> list[Path]:
@@ -69,6 +72,20 @@ def expected_counts(item: Path) -> Counter[str] | None:
             {e["topic_metadata"]["name"]: e["message_count"] for e in info["topics_with_message_count"]}
         )
     return None  # ROS 1 bags and bare mcap folders: the delivered messages must match the index
+
+
+def _small(item: Path, flat: dict[Role, Any]) -> dict[Role, tuple[list[int], list[tuple[float, ...]]]]:
+    """The small streams' stamps and rows, read with the direct parser's table `flat`."""
+    saved = dict(source._FLAT)
+    source._FLAT.clear()
+    source._FLAT.update(flat)
+    try:
+        with open_log(item) as src:
+            return {role: (rows.stamps, rows.values) for role, rows in src._small_streams().items()
+                    if role != Role.TF_STATIC}
+    finally:
+        source._FLAT.clear()
+        source._FLAT.update(saved)
 
 
 class Hang(Exception):
@@ -106,6 +123,12 @@ def walk(root: Path) -> Walk:
                         out.series_read += len(src.pressure())
                     for series in (src.imu(), src.odometry()):
                         out.series_read += 0 if series is None else len(series)
+                    if {Role.BARO, Role.IMU, Role.ODOM} & set(src.roles):
+                        # The direct parser of the small streams against the generic one.
+                        direct = _small(item, source._FLAT)
+                        if direct != _small(item, {}):
+                            out.mismatched[name] = "small streams: direct parser differs from rosbags"
+                        out.small_checked += sum(len(stamps) for stamps, _ in direct.values())
                     src.extrinsics()
                     if Role.LIDAR in src.roles:
                         # The direct PointCloud2 parser against rosbags' generic deserialiser,
@@ -134,7 +157,8 @@ def test_corpus_walk(shared_dir: Path) -> None:
         f"\ncorpus: {len(result.read)} read, {len(result.rejected)} rejected, "
         f"{len(result.mismatched)} mismatched; {result.decoded_messages} messages decoded, "
         f"{result.clouds_checked} point clouds parsed directly and checked against rosbags, "
-        f"{result.series_read} barometer/IMU/odometry samples"
+        f"{result.series_read} barometer/IMU/odometry samples ({result.small_checked} read directly "
+        "and checked against rosbags)"
     )
     for name, why in sorted(result.rejected.items()):
         print(f"  rejected {name}: {why}")
@@ -143,6 +167,7 @@ def test_corpus_walk(shared_dir: Path) -> None:
     assert result.mismatched == {}
     assert result.clouds_checked == 4  # two PointCloud2 in each rosbags-rs bag
     assert result.series_read == 12  # two FluidPressure, Imu and Odometry in each
+    assert result.small_checked == 12  # the same, read by the direct parser as rosbags reads them
     assert len(result.read) == EXPECTED_READ
     assert len(result.rejected) == len(EXPECTED_REJECTED)
     for key, reason in EXPECTED_REJECTED.items():

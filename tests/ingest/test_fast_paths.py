@@ -20,6 +20,8 @@ import pytest
 from mcap.reader import SeekingReader
 
 from mfmap.errors import DecodeError
+from mfmap.ingest import open_log
+from mfmap.ingest.config import IngestConfig
 from mfmap.ingest.decode import POINTFIELD_DTYPES, decode_pointcloud2, parse_pointcloud2
 from mfmap.ingest.mcap_backend import McapBackend
 
@@ -217,3 +219,82 @@ def test_ros1_reader_equals_rosbags(written_log: Callable[[str], Path], compress
                 assert ours == theirs and ours
     finally:
         backend.close()
+
+
+def _small_rows(path: Path, direct: bool, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    import mfmap.ingest.source as source
+
+    with monkeypatch.context() as m:
+        if not direct:
+            m.setattr(source, "_FLAT", {})
+        with open_log(path, IngestConfig()) as src:
+            rows = src._small_streams()
+            return {role.name: (r.stamps, r.values, r.frame, r.child, r.transforms and len(r.transforms))
+                    for role, r in rows.items()}
+
+
+@pytest.mark.parametrize("fmt", lw.FORMATS)
+def test_direct_small_message_parser_equals_generic(
+    written_log: Callable[[str], Path], fmt: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Barometer, IMU and odometry read by the direct parser: every stamp, value and frame the
+    generic deserialiser gives, in every format and encoding the writers produce."""
+    import mfmap.ingest.source as source
+
+    path = written_log(fmt)
+    calls = 0
+    parse = source.parse_stamped_doubles
+
+    def counting(*args: Any) -> Any:
+        nonlocal calls
+        calls += 1
+        return parse(*args)
+
+    monkeypatch.setattr(source, "parse_stamped_doubles", counting)
+    direct = _small_rows(path, True, monkeypatch)
+    # Every message once, and each topic's first once more (checked against the generic one).
+    assert calls == lw.BARO_N + lw.IMU_N + lw.ODOM_N + 3
+    generic = _small_rows(path, False, monkeypatch)
+    assert direct == generic
+    assert [len(direct[r][0]) for r in ("BARO", "IMU", "ODOM")] == [lw.BARO_N, lw.IMU_N, lw.ODOM_N]
+
+
+def test_direct_small_message_parser_reports_a_cut_message() -> None:
+    """A message that ends early raises (the source turns it into a DecodeError naming the
+    topic); the doubles of a whole one come out at their CDR alignment."""
+    import struct
+
+    from mfmap.ingest.decode import parse_stamped_doubles
+
+    frame = b"imu_link\x00"  # 9 bytes: the doubles start at the next multiple of 8 after it
+    head = b"\x00\x01\x00\x00" + struct.pack("<iI", 12, 500) + struct.pack("<I", len(frame)) + frame
+    pad = b"\x00" * ((-(len(head) - 4)) % 8)
+    body = struct.pack("<37d", *range(37))
+    stamp, name, child, values = parse_stamped_doubles(head + pad + body, "cdr", 37)
+    assert (stamp, name, child, values) == (12_000_000_500, "imu_link", "", tuple(float(v) for v in range(37)))
+    with pytest.raises(struct.error):
+        parse_stamped_doubles(head + pad + body[:-8], "cdr", 37)
+
+
+def test_a_cut_pressure_message_is_a_decode_error_naming_the_topic(tmp_path: Path) -> None:
+    """A message cut short after the topic's first (which the direct parser checks against
+    the generic one): one DecodeError naming the file, the topic and the type."""
+    from mcap.writer import Writer
+
+    store = lw.typestore(ros1=False)
+    msgtype = "sensor_msgs/msg/FluidPressure"
+    path = tmp_path / "cut.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2", library="mfmap-tests")
+        sid = w.register_schema(msgtype, "ros2msg", store.generate_msgdef(msgtype, ros_version=2)[0].encode())
+        channel = w.register_channel("/pressure", "cdr", sid)
+        for i in range(4):
+            t = lw.T0_NS + i * 10**8
+            data = bytes(store.serialize_cdr(lw.pressure_msg(store, t, 101_000.0 + i), msgtype))
+            w.add_message(channel, log_time=t, data=data[:-12] if i == 2 else data, publish_time=t)
+        w.finish()
+    with open_log(path) as src, pytest.raises(
+        DecodeError, match=r"cut\.mcap topic /pressure: unexpected sensor_msgs/msg/FluidPressure layout"
+    ):
+        src.pressure()
