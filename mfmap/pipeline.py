@@ -130,6 +130,14 @@ def build(
                         log,
                     )
 
+            pressure_png = None
+            if pool is not None and cfg.export.html_report and len(seg.stamp_ns) > 1:
+                # The report's figures are drawn by a worker, idle while this process runs the
+                # graph (matplotlib's import and the drawing: 0.9 s of two-floor's export).
+                from mfmap.export.report import pressure_plot_png
+
+                pressure_png = pool.submit(pressure_plot_png, seg)
+
             t0 = time.perf_counter()
             graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, progress)
             warnings += graph.warnings
@@ -139,36 +147,37 @@ def build(
             trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress, pool)
             timings["accumulate"] = time.perf_counter() - t0
 
-        t0 = time.perf_counter()
-        counts = {
-            "floors": len(seg.floors),
-            "transitions": len(seg.transitions),
-            "keyframes": len(mapping.keyframes),
-            "edges": len(mapping.edges),
-            "loop_edges": sum(1 for e in mapping.edges if e.kind == "loop"),
-            "scans": len(mapping.scan_poses),
-            "scans_exported": maps.scans,
-            "pressure_samples": len(pressure) if pressure is not None else 0,
-        }
-        report: dict[str, Any] = {
-            "log": str(log),
-            "summary": {
+            t0 = time.perf_counter()
+            counts = {
                 "floors": len(seg.floors),
                 "transitions": len(seg.transitions),
-                "log_duration_s": round(log_duration_s, 3),
                 "keyframes": len(mapping.keyframes),
-            },
-            "counts": counts,
-            "timings_s": {k: round(v, 3) for k, v in timings.items()},
-            "mapping": {k: float(v) for k, v in mapping.stats.items()},
-            "graph": graph.to_json(),
-            "warnings": warnings,
-        }
-        with progress.stage("export", total=None):
-            summary = write_outputs(
-                partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
-                title=f"mfmap build of {log.name}", html=cfg.export.html_report,
-            )
+                "edges": len(mapping.edges),
+                "loop_edges": sum(1 for e in mapping.edges if e.kind == "loop"),
+                "scans": len(mapping.scan_poses),
+                "scans_exported": maps.scans,
+                "pressure_samples": len(pressure) if pressure is not None else 0,
+            }
+            report: dict[str, Any] = {
+                "log": str(log),
+                "summary": {
+                    "floors": len(seg.floors),
+                    "transitions": len(seg.transitions),
+                    "log_duration_s": round(log_duration_s, 3),
+                    "keyframes": len(mapping.keyframes),
+                },
+                "counts": counts,
+                "timings_s": {k: round(v, 3) for k, v in timings.items()},
+                "mapping": {k: float(v) for k, v in mapping.stats.items()},
+                "graph": graph.to_json(),
+                "warnings": warnings,
+            }
+            with progress.stage("export", total=None):
+                summary = write_outputs(
+                    partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
+                    title=f"mfmap build of {log.name}", html=cfg.export.html_report,
+                    pool=pool, pressure_png=pressure_png,
+                )
         timings["export"] = time.perf_counter() - t0
         elapsed = time.perf_counter() - started
         _finish_report(partial, timings, elapsed, log_duration_s)

@@ -48,16 +48,21 @@ def pressure_plot_png(seg: FloorSegmentation) -> bytes:
     return _figure_png(fig)
 
 
-def side_view_png(points: np.ndarray, floor: np.ndarray, max_points: int = 60_000) -> bytes:
+def side_view_sample(points: np.ndarray, floor: np.ndarray, max_points: int = 60_000) -> tuple[np.ndarray, np.ndarray]:
+    """Every k-th point (and its floor) so that about `max_points` are drawn."""
+    step = max(1, points.shape[0] // max_points)
+    return points[::step], floor[::step]
+
+
+def side_view_png(pts: np.ndarray, fl: np.ndarray) -> bytes:
+    """x-z scatter of the points (`side_view_sample`), coloured by floor."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 4))
-    if points.shape[0]:
-        step = max(1, points.shape[0] // max_points)
-        pts, fl = points[::step], floor[::step]
+    if pts.shape[0]:
         for f in np.unique(fl):
             sel = fl == f
             ax.scatter(pts[sel, 0], pts[sel, 2], s=0.2, color=f"C{int(f) % 10}", label=f"floor {int(f)}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from mfmap.export.files import tum_text, write_bytes, write_json, write_ply, wri
 from mfmap.export.floorsjson import floors_json
 from mfmap.export.grid import OccupancyGrid
 from mfmap.export.mapdata import MapAccumulator
-from mfmap.export.report import html_report, pressure_plot_png, side_view_png
+from mfmap.export.report import html_report, pressure_plot_png, side_view_png, side_view_sample
 from mfmap.graph.optimize import GraphResult
 from mfmap.types import F64, FloorSegmentation, MappingResult
 
@@ -132,8 +133,14 @@ def write_outputs(
     config_yaml: str,
     title: str,
     html: bool = True,
+    pool: Executor | None = None,
+    pressure_png: Future[bytes] | None = None,
 ) -> ExportSummary:
-    """Write map.ply, trajectory.tum, floors.json, floors/<id>/..., report.json/html, config.yaml."""
+    """Write map.ply, trajectory.tum, floors.json, floors/<id>/..., report.json/html, config.yaml.
+
+    With `pool`, report.html's side view is drawn by a worker while the files are written;
+    `pressure_png` is the pressure figure, already submitted to one.
+    """
     summary = ExportSummary()
     folder.mkdir(parents=True, exist_ok=True)
 
@@ -145,15 +152,17 @@ def write_outputs(
     write_json(folder / "floors.json", floors_doc)
     summary.floors_doc = floors_doc
 
-    clouds: list[np.ndarray] = []
-    labels: list[np.ndarray] = []
+    clouds = {floor_id: maps.cloud(floor_id) for floor_id in maps.floor_ids()}
+    xyz = np.concatenate(list(clouds.values())) if clouds else np.zeros((0, 3), np.float32)
+    floor = (np.concatenate([np.full(c.shape[0], f, dtype=np.int32) for f, c in clouds.items()])
+             if clouds else np.zeros(0, np.int32))
+    side_view: Future[bytes] | None = None
+    if html and pool is not None:
+        side_view = pool.submit(side_view_png, *side_view_sample(xyz, floor))
     grid_pngs: dict[int, bytes] = {}
-    for floor_id in maps.floor_ids():
-        cloud = maps.cloud(floor_id)
+    for floor_id, cloud in clouds.items():
         sub = folder / "floors" / str(floor_id)
         write_ply(sub / "cloud.ply", cloud)
-        clouds.append(cloud)
-        labels.append(np.full(cloud.shape[0], floor_id, dtype=np.int32))
         summary.points_per_floor[floor_id] = int(cloud.shape[0])
         on_floor = trajectory.floor == floor_id
         traj_xy = trajectory.poses[on_floor, :2, 3] if on_floor.any() else None
@@ -169,8 +178,6 @@ def write_outputs(
             "occupied": int(grid.occupied.sum()),
             "free": int(grid.free.sum()),
         }
-    xyz = np.concatenate(clouds) if clouds else np.zeros((0, 3), np.float32)
-    floor = np.concatenate(labels) if labels else np.zeros(0, np.int32)
     write_ply(folder / "map.ply", xyz, floor)
 
     report = dict(report)
@@ -181,8 +188,13 @@ def write_outputs(
     }
     write_json(folder / "report.json", report)
     if html:
-        pressure_png = pressure_plot_png(seg) if len(seg.stamp_ns) > 1 else None
-        page = html_report(title, report, floors_doc, pressure_png, grid_pngs, side_view_png(xyz, floor))
+        pressure: bytes | None = None
+        if pressure_png is not None:
+            pressure = pressure_png.result()
+        elif len(seg.stamp_ns) > 1:
+            pressure = pressure_plot_png(seg)
+        side = side_view.result() if side_view is not None else side_view_png(*side_view_sample(xyz, floor))
+        page = html_report(title, report, floors_doc, pressure, grid_pngs, side)
         write_text(folder / "report.html", page)
     write_text(folder / "config.yaml", config_yaml)
     summary.files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())

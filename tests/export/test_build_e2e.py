@@ -258,3 +258,29 @@ def test_no_lidar_fails_clearly(tiny: Path, tmp_path: Path) -> None:
         pipeline.build(log, tmp_path / "out", MfmapConfig())
     assert not (tmp_path / "out").exists()
     assert list(tmp_path.iterdir()) == [log]
+
+
+def test_report_figures_drawn_by_workers_are_the_same(tiny: Path, tmp_path: Path) -> None:
+    """report.html's figures drawn in a worker process (the build's pool) are the bytes the
+    build's own process draws."""
+    from mfmap.export.report import pressure_plot_png
+    from mfmap.export.write import write_outputs
+    from mfmap.ingest import open_log
+    from mfmap.mapping import map_floors
+    from mfmap.mapping.workers import worker_pool
+    from mfmap.progress import NullProgress
+
+    cfg = MfmapConfig()
+    with open_log(tiny / "log.mcap", cfg.ingest) as src:
+        extrinsics = src.extrinsics()
+        pressure, seg = pipeline.segment_floors(src, cfg, [])
+        mapping = map_floors(src, seg, cfg.mapping, extrinsics, NullProgress())
+        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, NullProgress())
+        trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, cfg, NullProgress())
+    args = (seg, mapping, graph, trajectory, maps, {"log": "tiny"}, "config", "tiny")
+    write_outputs(tmp_path / "here", *args)
+    with worker_pool(2) as pool:
+        write_outputs(tmp_path / "pool", *args, pool=pool, pressure_png=pool.submit(pressure_plot_png, seg))
+    here = (tmp_path / "here" / "report.html").read_text()
+    assert here.count("data:image/png;base64,") == 4
+    assert (tmp_path / "pool" / "report.html").read_text() == here
