@@ -105,14 +105,15 @@ def test_time_window_is_inclusive_on_header_stamps(log: tuple[str, Path]) -> Non
 
 
 def _spy(src: Any, seen: list[str]) -> None:
-    """Record the topic of every message the backend deserialises."""
-    real = src._backend.deserialize
+    """Record the topic of every message the backend reads (whichever parser decodes it)."""
+    real = src._backend.iter_raw
 
-    def spy(message: Any) -> Any:
-        seen.append(message.topic)
-        return real(message)
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        for message in real(*args, **kwargs):
+            seen.append(message.topic)
+            yield message
 
-    src._backend.deserialize = spy
+    src._backend.iter_raw = spy
 
 
 def test_small_streams_in_one_pass_and_one_role_alone(log: tuple[str, Path]) -> None:
