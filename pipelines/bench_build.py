@@ -89,14 +89,15 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
         pressure, seg = pipeline.segment_floors(src, cfg, warnings)
         extrinsics = src.extrinsics()
         mapping = map_floors(src, seg, cfg.mapping, extrinsics)
-        imu = src.imu()
+        imu, odom = src.imu(), src.odometry()
         for name, switches in ABLATIONS.items():
             variant = cfg.model_copy(deep=True)
             for key, value in switches.items():
                 setattr(variant.graph, key, value)
             variant.export.cloud_source = CloudSource.KEYFRAMES
             variant.export.html_report = False
-            graph = pipeline.optimise(mapping, seg, pressure, imu, extrinsics, variant, pipeline.NullProgress())
+            graph = pipeline.optimise(mapping, seg, pressure, imu, extrinsics, variant, pipeline.NullProgress(),
+                                     odom=odom)
             trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, variant,
                                                    pipeline.NullProgress())
             out = work / f"ablation-{sim.name}-{name.replace(' ', '-')}"

@@ -77,6 +77,11 @@ class GraphConfig(BaseModel):
         0.25, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
     )
     gravity_sigma_deg: float = Field(1.0, description="roll/pitch from gravity")
+    gravity_minus_odometry: bool = Field(
+        True,
+        description="take the robot's own acceleration (from the wheel odometry's twist) out of "
+        "the IMU's mean specific force before it is read as gravity",
+    )
     prior_sigma: float = Field(1e-4, description="prior on the first keyframe (m, rad)")
     interfloor_voxel_m: float = Field(0.1, description="voxel for inter-floor registration")
     interfloor_band_m: tuple[float, float] = Field(

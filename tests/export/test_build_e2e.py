@@ -170,7 +170,8 @@ def test_worker_processes_do_not_change_the_maps(tiny: Path) -> None:
         pressure, seg = pipeline.segment_floors(src, cfg, [])
         ext = src.extrinsics()
         mapping = map_floors(src, seg, cfg.mapping, ext)
-        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), ext, cfg, NullProgress())
+        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), ext, cfg, NullProgress(),
+                                  odom=src.odometry())
         _, two = pipeline.accumulate(src, seg, mapping, graph, ext, cfg, NullProgress())
         cfg.export.workers = 1
         _, one = pipeline.accumulate(src, seg, mapping, graph, ext, cfg, NullProgress())
@@ -275,7 +276,8 @@ def test_report_figures_drawn_by_workers_are_the_same(tiny: Path, tmp_path: Path
         extrinsics = src.extrinsics()
         pressure, seg = pipeline.segment_floors(src, cfg, [])
         mapping = map_floors(src, seg, cfg.mapping, extrinsics, NullProgress())
-        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, NullProgress())
+        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, NullProgress(),
+                                  odom=src.odometry())
         trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, cfg, NullProgress())
     args = (seg, mapping, graph, trajectory, maps, {"log": "tiny"}, "config", "tiny")
     write_outputs(tmp_path / "here", *args)

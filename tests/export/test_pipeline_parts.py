@@ -17,7 +17,7 @@ from mfmap.pipeline import (
     gravity_at_keyframes,
     single_floor,
 )
-from mfmap.types import Extrinsics, ImuSeries, Keyframe
+from mfmap.types import Extrinsics, ImuSeries, Keyframe, OdomSeries
 
 
 def test_cabin_filter_drops_the_cabin_and_what_is_seen_through_it() -> None:
@@ -57,6 +57,32 @@ def test_gravity_at_keyframes_in_the_base_frame() -> None:
     # Accelerating: the mean is not gravity, no factor.
     moving = ImuSeries(stamps, np.zeros((n, 3)), np.tile([5.0, 0.0, 9.8], (n, 1)), np.full((n, 4), np.nan), "imu")
     assert gravity_at_keyframes(moving, kfs, ext) == {}
+
+
+def test_gravity_at_keyframes_takes_out_the_robots_own_acceleration() -> None:
+    """Speeding up and turning: the IMU's mean specific force is not gravity; minus the
+    acceleration the wheel odometry's twist gives (lever arm included) it is up, exactly."""
+    n = 200
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000  # 100 Hz, 2 s
+    t = stamps / 1e9
+    lever = np.array([0.0, 0.05, 0.2])  # the IMU's place on the base
+    ext = Extrinsics("base_link", {"imu": pose_xyyaw(*lever, 0.0)})
+    kfs = [Keyframe(0, 1_000_000_000, 0, 0, np.eye(4), np.zeros((0, 3), np.float32), 1.0, 0.0)]
+    # Speeding up at 0.3 m/s^2 while turning at 0.6 rad/s: v x w is centripetal, the lever arm
+    # adds w x (w x r).
+    v = np.column_stack([0.2 + 0.3 * t, np.zeros(n), np.zeros(n)])
+    w = np.tile([0.0, 0.0, 0.6], (n, 1))
+    accel = (np.array([0.3, 0.0, 0.0]) + np.cross(w, v) + np.cross(w, np.cross(w, np.tile(lever, (n, 1))))
+             + [0.0, 0.0, 9.81])
+    imu = ImuSeries(stamps, w, accel, np.full((n, 4), np.nan), "imu")
+    odom = OdomSeries(stamps, np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), v, w, "odom", "base_link")
+    raw = gravity_at_keyframes(imu, kfs, ext)[0]
+    assert np.degrees(np.arccos(raw[2])) > 2.0  # the turn and the speeding up read as tilt
+    up = gravity_at_keyframes(imu, kfs, ext, odom=odom)[0]
+    assert np.degrees(np.arccos(min(up[2], 1.0))) < 1e-3
+    # Where the odometry does not reach, no factor: the mean may hold the robot's acceleration.
+    short = OdomSeries(stamps[:10], np.zeros((10, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (10, 1)), v[:10], w[:10])
+    assert gravity_at_keyframes(imu, kfs, ext, odom=short) == {}
 
 
 def test_single_floor_spans_the_log() -> None:
