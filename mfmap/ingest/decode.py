@@ -475,27 +475,32 @@ class _Cursor:
         return out
 
 
+def _header(buf: memoryview, encoding: str) -> tuple[_Cursor, int, int, str]:
+    """A serialised std_msgs/Header ("cdr" or "ros1"): the cursor after it, stamp sec and
+    nanosec, frame_id. Raises IndexError or struct.error when the bytes end early."""
+    if encoding == "cdr":
+        if len(buf) < 4:
+            raise IndexError("shorter than the CDR header")
+        order = "<" if buf[1] & 1 else ">"
+        c = _Cursor(buf, 4, order, 4, aligned=True)
+        sec = struct.unpack_from(order + "i", buf, c.pos)[0]
+        c.pos += 4
+        nanosec = c.u32()
+        return c, int(sec), nanosec, c.string(nul=True)
+    c = _Cursor(buf, 0, "<", 0, aligned=False)
+    c.u32()  # seq
+    sec, nanosec = c.u32(), c.u32()
+    return c, sec, nanosec, c.string(nul=False)
+
+
 def parse_pointcloud2(data: bytes | memoryview, encoding: str, where: str = "") -> PointCloud2Msg:
     """Serialised sensor_msgs/PointCloud2 (encoding "cdr" or "ros1") -> PointCloud2Msg."""
     buf = memoryview(data).cast("B")
+    if encoding not in ("cdr", "ros1"):
+        raise DecodeError(f"cannot parse PointCloud2 in encoding '{encoding}'", where)
     try:
-        if encoding == "cdr":
-            if len(buf) < 4:
-                raise IndexError("shorter than the CDR header")
-            order = "<" if buf[1] & 1 else ">"
-            c = _Cursor(buf, 4, order, 4, aligned=True)
-            sec = struct.unpack_from(order + "i", buf, c.pos)[0]
-            c.pos += 4
-            nanosec = c.u32()
-            frame = c.string(nul=True)
-        elif encoding == "ros1":
-            order = "<"
-            c = _Cursor(buf, 0, order, 0, aligned=False)
-            c.u32()  # seq
-            sec, nanosec = c.u32(), c.u32()
-            frame = c.string(nul=False)
-        else:
-            raise DecodeError(f"cannot parse PointCloud2 in encoding '{encoding}'", where)
+        c, sec, nanosec, frame = _header(buf, encoding)
+        order = c.order
         # Everything from height to row_step (the fields block included) is the same in every
         # scan of a sensor: compare its bytes with the previous scan's instead of parsing.
         c.align(4)
@@ -560,29 +565,13 @@ def parse_stamped_doubles(
     sample: an hour of 200 Hz IMU is 720 000 of them. Raises IndexError or struct.error when
     the bytes end early.
     """
-    buf = memoryview(data).cast("B")
-    if encoding == "cdr":
-        if len(buf) < 4:
-            raise IndexError("shorter than the CDR header")
-        order = "<" if buf[1] & 1 else ">"
-        c = _Cursor(buf, 4, order, 4, aligned=True)
-        sec = struct.unpack_from(order + "i", buf, c.pos)[0]
-        c.pos += 4
-        nanosec = c.u32()
-        frame = c.string(nul=True)
-        child = c.string(nul=True) if child_frame else ""
-        c.align(8)
-    elif encoding == "ros1":
-        order = "<"
-        c = _Cursor(buf, 0, order, 0, aligned=False)
-        c.u32()  # seq
-        sec, nanosec = c.u32(), c.u32()
-        frame = c.string(nul=False)
-        child = c.string(nul=False) if child_frame else ""
-    else:
+    if encoding not in ("cdr", "ros1"):
         raise ValueError(f"cannot parse encoding '{encoding}'")
-    block = _DOUBLES.get((order, n_doubles))
+    c, sec, nanosec, frame = _header(memoryview(data).cast("B"), encoding)
+    child = c.string(nul=encoding == "cdr") if child_frame else ""
+    c.align(8)  # (ROS 1 packs without alignment: no-op)
+    block = _DOUBLES.get((c.order, n_doubles))
     if block is None:
-        block = _DOUBLES[(order, n_doubles)] = struct.Struct(f"{order}{n_doubles}d")
-    values = block.unpack_from(buf, c.pos)
-    return int(sec) * 1_000_000_000 + int(nanosec), frame, child, values
+        block = _DOUBLES[(c.order, n_doubles)] = struct.Struct(f"{c.order}{n_doubles}d")
+    values = block.unpack_from(c.buf, c.pos)
+    return sec * 1_000_000_000 + nanosec, frame, child, values
