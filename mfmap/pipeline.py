@@ -289,7 +289,7 @@ def gravity_at_keyframes(
     odometry's body-frame twist: the change of velocity, the turn's w x v, and the lever arm of
     an IMU off the base's origin. A keyframe is taken while the robot drives and turns, where
     0.1 m/s^2 is 0.6 degrees of false tilt: on two-floor the keyframes' measured up was off by
-    0.38 degrees at the median and 2.0 at the 90th percentile, 0.25 and 0.58 with it.
+    0.38 degrees at the median and 2.0 at the 90th percentile, 0.22 and 0.57 with it.
     """
     if imu is None or len(imu) == 0:
         return {}
