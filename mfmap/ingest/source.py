@@ -78,10 +78,12 @@ class _Rows:
     error: MfmapError | None = None
 
     def add(self, role: Role, msg: Any, stamp_ns: int) -> None:
+        """A message from the generic deserialiser."""
+        frame = child = ""  # only the first message's are kept
         if not self.stamps:
             header = getattr(msg, "header", None)
-            self.frame = str(header.frame_id) if header is not None else ""
-            self.child = str(getattr(msg, "child_frame_id", ""))
+            frame = str(header.frame_id) if header is not None else ""
+            child = str(getattr(msg, "child_frame_id", ""))
         if role == Role.BARO:
             row: tuple[float, ...] = (float(msg.fluid_pressure),)
         elif role == Role.IMU:
@@ -101,11 +103,10 @@ class _Rows:
                     )
                 )
             row = ()
-        self.stamps.append(stamp_ns)
-        self.values.append(row)
+        self.add_row(stamp_ns, row, frame, child)
 
     def add_row(self, stamp_ns: int, row: tuple[float, ...], frame: str, child: str) -> None:
-        """A message read by the direct parser (`_FLAT`), as `add` would have kept it."""
+        """A message as a row; the first message's frames are the stream's."""
         if not self.stamps:
             self.frame, self.child = frame, child
         self.stamps.append(stamp_ns)
@@ -469,11 +470,7 @@ class LogSource:
                     if raw.topic not in direct:
                         direct[raw.topic] = self._direct_agrees(raw, role)
                     if direct[raw.topic]:
-                        n_doubles, child_frame, pick = _FLAT[role]
-                        encoding, data = self._backend.serialized(raw)
-                        stamp_ns, frame, child, doubles = parse_stamped_doubles(
-                            data, encoding, n_doubles, child_frame)
-                        rows.add_row(stamp_ns or int(raw.log_time_ns), pick(doubles), frame, child)
+                        rows.add_row(*self._read_direct(raw, role))
                         continue
                 msg = self._backend.deserialize(raw)
                 rows.add(role, msg, stamp_ns_of(msg, raw.log_time_ns))
@@ -486,20 +483,26 @@ class LogSource:
         self._small = out
         return out
 
+    def _read_direct(self, raw: RawMessage, role: Role) -> tuple[int, tuple[float, ...], str, str]:
+        """One `_FLAT` message by the direct parser: `_Rows.add_row`'s stamp, row and frames
+        (the log time when the header's stamp is zero, as `stamp_ns_of`)."""
+        n_doubles, child_frame, pick = _FLAT[role]
+        encoding, data = self._backend.serialized(raw)
+        stamp_ns, frame, child, doubles = parse_stamped_doubles(data, encoding, n_doubles, child_frame)
+        return stamp_ns or int(raw.log_time_ns), pick(doubles), frame, child
+
     def _direct_agrees(self, raw: RawMessage, role: Role) -> bool:
         """Does the direct parser read this message exactly as the generic deserialiser does?
         (Not for a message type of the same name with other fields: then the generic one.)"""
-        n_doubles, child_frame, pick = _FLAT[role]
         try:
-            encoding, data = self._backend.serialized(raw)
-            stamp_ns, frame, child, doubles = parse_stamped_doubles(data, encoding, n_doubles, child_frame)
+            direct, reference = _Rows(), _Rows()
+            direct.add_row(*self._read_direct(raw, role))
             msg = self._backend.deserialize(raw)
-            reference = _Rows()
             reference.add(role, msg, stamp_ns_of(msg, raw.log_time_ns))
         except Exception:  # any failure: the generic path decides (and reports it)
             return False
-        return (reference.stamps == [stamp_ns or int(raw.log_time_ns)] and reference.values == [pick(doubles)]
-                and (reference.frame, reference.child) == (frame, child))
+        return (direct.stamps, direct.values, direct.frame, direct.child) == (
+            reference.stamps, reference.values, reference.frame, reference.child)
 
     def _rows(self, role: Role) -> _Rows | None:
         rows = self._small_streams().get(role)

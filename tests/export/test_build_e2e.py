@@ -159,19 +159,31 @@ def test_grids_match_the_ground_truth_walls(built: tuple[Path, pipeline.BuildRes
         assert s.recall >= 0.93, s
 
 
-def test_worker_processes_do_not_change_the_maps(tiny: Path) -> None:
+@pytest.fixture(scope="module")
+def stages(tiny: Path) -> tuple[Any, Any, Any, Any]:
+    """tiny's floors, mapping and graph with the default config: (seg, mapping, graph, extrinsics)."""
     from mfmap.ingest import open_log
     from mfmap.mapping import map_floors
     from mfmap.progress import NullProgress
 
     cfg = MfmapConfig()
-    cfg.export.workers = 2
     with open_log(tiny / "log.mcap", cfg.ingest) as src:
         pressure, seg = pipeline.segment_floors(src, cfg, [])
         ext = src.extrinsics()
         mapping = map_floors(src, seg, cfg.mapping, ext)
         graph = pipeline.optimise(mapping, seg, pressure, src.imu(), ext, cfg, NullProgress(),
                                   odom=src.odometry())
+    return seg, mapping, graph, ext
+
+
+def test_worker_processes_do_not_change_the_maps(tiny: Path, stages: tuple[Any, Any, Any, Any]) -> None:
+    from mfmap.ingest import open_log
+    from mfmap.progress import NullProgress
+
+    seg, mapping, graph, ext = stages
+    cfg = MfmapConfig()
+    cfg.export.workers = 2
+    with open_log(tiny / "log.mcap", cfg.ingest) as src:
         _, two = pipeline.accumulate(src, seg, mapping, graph, ext, cfg, NullProgress())
         cfg.export.workers = 1
         _, one = pipeline.accumulate(src, seg, mapping, graph, ext, cfg, NullProgress())
@@ -261,23 +273,20 @@ def test_no_lidar_fails_clearly(tiny: Path, tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == [log]
 
 
-def test_report_figures_drawn_by_workers_are_the_same(tiny: Path, tmp_path: Path) -> None:
+def test_report_figures_drawn_by_workers_are_the_same(
+    tiny: Path, stages: tuple[Any, Any, Any, Any], tmp_path: Path
+) -> None:
     """report.html's figures drawn in a worker process (the build's pool) are the bytes the
     build's own process draws."""
     from mfmap.export.report import pressure_plot_png
     from mfmap.export.write import write_outputs
     from mfmap.ingest import open_log
-    from mfmap.mapping import map_floors
     from mfmap.mapping.workers import worker_pool
     from mfmap.progress import NullProgress
 
+    seg, mapping, graph, extrinsics = stages
     cfg = MfmapConfig()
     with open_log(tiny / "log.mcap", cfg.ingest) as src:
-        extrinsics = src.extrinsics()
-        pressure, seg = pipeline.segment_floors(src, cfg, [])
-        mapping = map_floors(src, seg, cfg.mapping, extrinsics, NullProgress())
-        graph = pipeline.optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, NullProgress(),
-                                  odom=src.odometry())
         trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, cfg, NullProgress())
     args = (seg, mapping, graph, trajectory, maps, {"log": "tiny"}, "config", "tiny")
     write_outputs(tmp_path / "here", *args)

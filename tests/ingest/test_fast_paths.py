@@ -229,7 +229,7 @@ def _small_rows(path: Path, direct: bool, monkeypatch: pytest.MonkeyPatch) -> di
             m.setattr(source, "_FLAT", {})
         with open_log(path, IngestConfig()) as src:
             rows = src._small_streams()
-            return {role.name: (r.stamps, r.values, r.frame, r.child, r.transforms and len(r.transforms))
+            return {role.name: (r.stamps, r.values, r.frame, r.child, len(r.transforms))
                     for role, r in rows.items()}
 
 
