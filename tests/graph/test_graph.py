@@ -163,3 +163,32 @@ def test_corridor_is_rejected_as_ambiguous() -> None:
     match = register_floors(lower, upper, 0, 1)
     assert not match.accepted
     assert "ambiguous" in match.reason
+
+
+def test_floor_icp_holds_z_and_recovers_x_y_yaw(building: SyntheticBuilding) -> None:
+    """The inter-floor ICP solves for x, y, yaw (and roll, pitch in its fine pass), never z:
+    horizontal normals leave z unmeasured, and open3d's six-degree fit ran away on it."""
+    import open3d as o3d
+
+    from mfmap.graph.interfloor import _cloud, _Target, project_xyyaw
+    from mfmap.graph.optimize import floor_points
+
+    b = building
+    lower = floor_points(b.keyframes, b.gt_poses, 0, (0.5, 1.5), 0.0)
+    shift = pose_xyyaw(0.12, -0.2, 0.0, math.radians(1.5))
+    tilt = np.eye(4)
+    tilt[:3, :3] = gtsam.Rot3.RzRyRx(math.radians(0.3), math.radians(-0.2), 0.0).matrix()
+    moved = lower @ (shift @ tilt)[:3, :3].T + shift[:3, 3]
+    target = _Target(_cloud(lower, 0.1))
+    source = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(moved))
+                        .voxel_down_sample(0.1).points)
+    start = np.eye(4)
+    start[2, 3] = 0.05  # a z offset the walls cannot see: it must come back as it went in
+    coarse = target.icp(source, start, 0.5)
+    assert coarse[2, 3] == 0.05 and np.allclose(coarse[2, :3], [0.0, 0.0, 1.0])
+    fine = target.icp(source, coarse, 0.1, tilt=True)
+    assert fine[2, 3] == pytest.approx(0.05, abs=1e-12)
+    # The fine pass takes the tilt out: what is left is the inverse of the shift.
+    recovered = project_xyyaw(fine) @ shift
+    assert abs(recovered[0, 3]) < 0.003 and abs(recovered[1, 3]) < 0.003
+    assert abs(math.degrees(math.atan2(recovered[1, 0], recovered[0, 0]))) < 0.01
