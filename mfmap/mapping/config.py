@@ -97,6 +97,20 @@ class MappingConfig(BaseModel):
         "stairs is registered; the climb came out within 1.5-3 cm of the truth on the stairs "
         "scenario): it and the barometer's height change across the walk set the floors' heights",
     )
+    stairs_sigma_yaw_deg: float = Field(
+        0.3,
+        gt=0,
+        description="heading noise of the registrations' turn across a stair walk (they slip "
+        "as the robot tips onto the first step: 0.00-0.70 deg over stairs seeds 0-2)",
+    )
+    stairs_gyro_sigma_yaw_deg: float = Field(
+        0.1,
+        ge=0,
+        description="heading noise of the IMU gyro's turn across a stair walk (0.04-0.17 deg "
+        "over stairs seeds 0-2: its bias wanders). With a gyro, the walk's turn is the two "
+        "weighed by their variances and the scans on the way follow the gyro (0: the "
+        "registrations' turn)",
+    )
     loop_closure: bool = Field(True, description="search and verify loop closures (same floor)")
     loop_radius_m: float = Field(4.0, description="position candidates within this distance")
     loop_min_separation: int = Field(

@@ -181,3 +181,38 @@ def test_wheel_scale_is_calibrated_against_the_lidar(sim_run: Callable[..., Path
     # Measured: 0.8 / 1.2 cm calibrated, 3.4 / 7.9 cm not (visit 1 starts in the cabin).
     assert [e.rmse_m < 0.02 for e in calibrated] == [True, True], calibrated
     assert uncalibrated[1].rmse_m > 0.05, uncalibrated
+
+
+def _walk_end_turns(result: MappingResult, seg: FloorSegmentation, folder: Path) -> list[float]:
+    """Per stair walk: the heading change (deg) between the first scan on it and the last one,
+    less the truth's over the same scans."""
+    stamps, truth = read_tum(folder / "gt_trajectory.tum")
+    true_yaw = np.unwrap(np.arctan2(truth[:, 1, 0], truth[:, 0, 0]))
+    poses = {kf.id: kf.pose for kf in result.keyframes}
+    scans = sorted(result.scan_poses, key=lambda s: s.stamp_ns)
+    scan_ns = np.array([s.stamp_ns for s in scans])
+    world = [poses[s.keyframe] @ s.relative for s in scans]
+    yaw = np.unwrap([np.arctan2(p[1, 0], p[0, 0]) for p in world])
+    errors = []
+    for tr in seg.transitions:
+        first = int(np.searchsorted(scan_ns, tr.start_ns))
+        last = int(np.searchsorted(scan_ns, tr.end_ns)) - 1
+        est = yaw[last] - yaw[first]
+        true = np.interp(scan_ns[last], stamps, true_yaw) - np.interp(scan_ns[first], stamps, true_yaw)
+        errors.append(float(np.degrees(est - true)))
+    return errors
+
+
+def test_stairs_heading_across_the_walks_follows_the_gyro(sim_run: Callable[..., Path],
+                                                          gt_floors: SegFn) -> None:
+    """Across a stair walk the scans take their heading from the gyro (the walk's turn is the
+    registrations' and the gyro's weighed, 0.9 the gyro's). The registrations alone slip as the
+    robot tips onto the first step and turn the walk's ends against each other."""
+    folder = sim_run("stairs")
+    seg = gt_floors(folder)
+    with_gyro = _walk_end_turns(_run(folder, gt_floors), seg, folder)
+    registrations = _walk_end_turns(_run(folder, gt_floors, stairs_gyro_sigma_yaw_deg=0.0),
+                                    seg, folder)
+    assert len(with_gyro) == 2
+    assert max(abs(e) for e in with_gyro) < 0.1, with_gyro
+    assert max(abs(e) for e in registrations) > 0.2, registrations
