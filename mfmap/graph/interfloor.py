@@ -97,8 +97,9 @@ class _Target:
 
     With the walls' normals horizontal nothing measures z, and open3d's six-degree-of-freedom
     point-to-plane ICP solves a singular system: from starts a degree or two off it ran away
-    (stairs seed 2, floors 1 and 2: one start came back turned by 180 degrees, the rest at
-    fitness 0.03 where the match is 0.27, and the floors' factor was rejected). Here the coarse
+    (stairs seed 2 with its top floor's initial poses turned by half a degree: one start came
+    back turned by 180 degrees, the rest at fitness 0.03 where the match is 0.27, and the
+    floors' factor was rejected). Here the coarse
     passes solve for x, y and yaw alone, and the fine pass adds roll and pitch, which walls seen
     over the band's height do measure, so the x, y and yaw kept are those of open3d's fit where
     that converged.
