@@ -150,7 +150,7 @@ class _Target:
             height = pose[2, 3]
             pose = spin @ tilt_step @ pose
             pose[2, 3] = height  # not measured: as it came in
-            if np.abs(step[2:]).max() < 1e-7 and np.abs(step[:2]).max() < 1e-6:
+            if np.abs(step[2:]).max() < 1e-6 and np.abs(step[:2]).max() < 1e-5:
                 break
         return pose
 
@@ -228,13 +228,19 @@ def register_floors(
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
     fine_source = np.asarray(source.points)
     candidates: list[tuple[float, float, F64]] = []
+    refined: list[tuple[F64, tuple[float, float, F64]]] = []  # coarse result -> its candidate
     for start in starts:
         current = start
         for radius in (voxel_m * 5.0, voxel_m * 2.5):
             current = coarse.icp(coarse_source, current, radius)
-        current = project_xyyaw(fine.icp(fine_source, current, voxel_m, tilt=True))
-        score = reg.evaluate_registration(source, target, voxel_m, current)
-        candidates.append((float(score.fitness), float(score.inlier_rmse), current))
+        # Starts usually meet in the coarse passes: the fine pass and the score once per place.
+        done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
+        if done is None:
+            best = project_xyyaw(fine.icp(fine_source, current, voxel_m, tilt=True))
+            score = reg.evaluate_registration(source, target, voxel_m, best)
+            done = (float(score.fitness), float(score.inlier_rmse), best)
+            refined.append((current, done))
+        candidates.append(done)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
     # rectangular building fits its outer walls but is not a plausible error of the elevator hold.
     plausible = [c for c in candidates if _plausible(c[2], max_correction_m, max_correction_deg)]
