@@ -37,6 +37,11 @@ def yaw_rad(pose: F64) -> float:
     return float(np.arctan2(pose[1, 0], pose[0, 0]))
 
 
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def yaw_pose(yaw: float, translation: F64 | None = None) -> F64:
     c, s = np.cos(yaw), np.sin(yaw)
     pose = np.eye(4)

@@ -10,7 +10,14 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from mfmap.mapping.geometry import inverse, rotation_angle_rad, transform, yaw_pose, yaw_rad
+from mfmap.mapping.geometry import (
+    inverse,
+    rotation_angle_rad,
+    transform,
+    wrap_angle,
+    yaw_pose,
+    yaw_rad,
+)
 from mfmap.mapping.registration import Registration, downsample, icp, to_o3d
 from mfmap.types import F64
 
@@ -197,8 +204,7 @@ class ScanMatcher:
         gain = prior_var / (prior_var + measured_var)
         self._heading_var = gain * measured_var
         self.blended += 1
-        turn = yaw_rad(result.transform) - yaw_rad(predicted)
-        turn = (turn + math.pi) % (2.0 * math.pi) - math.pi
+        turn = wrap_angle(yaw_rad(result.transform) - yaw_rad(predicted))
         blended = yaw_pose(-(1.0 - gain) * turn) @ result.transform
         blended[:3, 3] = result.transform[:3, 3]
         return blended

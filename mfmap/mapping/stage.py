@@ -32,6 +32,7 @@ from mfmap.mapping.geometry import (
     rotation_angle_rad,
     transform,
     twist,
+    wrap_angle,
     yaw_pose,
     yaw_rad,
 )
@@ -230,10 +231,6 @@ class MotionModel:
         if self.odom is None:
             return None
         return inverse(self.odom.at(from_ns)) @ self.odom.at(to_ns)
-
-
-def _wrap(angle_rad: float) -> float:
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _odometry_information(cfg: MappingConfig, delta: F64) -> F64:
@@ -539,9 +536,12 @@ class _Mapper:
                 or not gyro.covers(after.stamp_ns)):
             return measured
         sigma_reg = math.radians(self.cfg.stairs_sigma_yaw_deg)
-        # The gyro's heading at `after` less the registrations' (world yaw, turned from `before`).
-        gap = _wrap(yaw_rad(before.pose[:3, :3] @ gyro.delta(before.stamp_ns, after.stamp_ns))
-                    - yaw_rad(after.pose))
+
+        def gyro_heading(stamp_ns: int) -> float:  # world yaw, turned by the gyro from `before`
+            return yaw_rad(before.pose[:3, :3] @ gyro.delta(before.stamp_ns, stamp_ns))
+
+        # The gyro's heading at `after` less the registrations'.
+        gap = wrap_angle(gyro_heading(after.stamp_ns) - yaw_rad(after.pose))
         weighed = gap * sigma_reg**2 / (sigma_reg**2 + sigma_gyro**2)
         span_ns = after.stamp_ns - before.stamp_ns
         for n in range(len(self.scan_poses) - 1, -1, -1):
@@ -549,9 +549,9 @@ class _Mapper:
             if sp.keyframe != before.id or sp.stamp_ns <= before.stamp_ns:
                 break
             pose = before.pose @ sp.relative
-            heading = (yaw_rad(before.pose[:3, :3] @ gyro.delta(before.stamp_ns, sp.stamp_ns))
+            heading = (gyro_heading(sp.stamp_ns)
                        + (weighed - gap) * (sp.stamp_ns - before.stamp_ns) / span_ns)
-            pose[:3, :3] = yaw_pose(_wrap(heading - yaw_rad(pose)))[:3, :3] @ pose[:3, :3]
+            pose[:3, :3] = yaw_pose(wrap_angle(heading - yaw_rad(pose)))[:3, :3] @ pose[:3, :3]
             self.scan_poses[n] = ScanPose(sp.stamp_ns, sp.keyframe, inverse(before.pose) @ pose)
         target = after.pose.copy()
         target[:3, :3] = yaw_pose(weighed)[:3, :3] @ after.pose[:3, :3]

@@ -146,15 +146,25 @@ def test_2d_laserscan_variant_on_tiny_2d(sim_run: Callable[..., Path], gt_floors
         assert e.rmse_m < 0.05, e
 
 
-def test_stairs_climb_from_the_lidar(sim_run: Callable[..., Path], gt_floors: SegFn) -> None:
+@pytest.fixture(scope="module")
+def stairs(sim_run: Callable[..., Path]) -> Path:
+    return sim_run("stairs")
+
+
+@pytest.fixture(scope="module")
+def stairs_result(stairs: Path, gt_floors: SegFn) -> MappingResult:
+    return _run(stairs, gt_floors)
+
+
+def test_stairs_climb_from_the_lidar(stairs: Path, stairs_result: MappingResult,
+                                     gt_floors: SegFn) -> None:
     """The odometry edge across each stair walk climbs the true floor height to within 5 cm.
 
     Every scan on the stairs is registered: with every third (the default elsewhere) the scans
     between came from the planar wheel odometry and the climb came out 21-26 cm short.
     """
-    folder = sim_run("stairs")
-    seg = gt_floors(folder)
-    result = _run(folder, gt_floors)
+    seg = gt_floors(stairs)
+    result = stairs_result
     pose = {kf.id: kf.pose for kf in result.keyframes}
     visit = {kf.id: kf.visit for kf in result.keyframes}
     across = [e for e in result.edges if e.kind == "odometry" and visit[e.i] != visit[e.j]]
@@ -203,16 +213,15 @@ def _walk_end_turns(result: MappingResult, seg: FloorSegmentation, folder: Path)
     return errors
 
 
-def test_stairs_heading_across_the_walks_follows_the_gyro(sim_run: Callable[..., Path],
+def test_stairs_heading_across_the_walks_follows_the_gyro(stairs: Path, stairs_result: MappingResult,
                                                           gt_floors: SegFn) -> None:
     """Across a stair walk the scans take their heading from the gyro (the walk's turn is the
     registrations' and the gyro's weighed, 0.9 the gyro's). The registrations alone slip as the
     robot tips onto the first step and turn the walk's ends against each other."""
-    folder = sim_run("stairs")
-    seg = gt_floors(folder)
-    with_gyro = _walk_end_turns(_run(folder, gt_floors), seg, folder)
-    registrations = _walk_end_turns(_run(folder, gt_floors, stairs_gyro_sigma_yaw_deg=0.0),
-                                    seg, folder)
+    seg = gt_floors(stairs)
+    with_gyro = _walk_end_turns(stairs_result, seg, stairs)
+    registrations = _walk_end_turns(_run(stairs, gt_floors, stairs_gyro_sigma_yaw_deg=0.0),
+                                    seg, stairs)
     assert len(with_gyro) == 2
     assert max(abs(e) for e in with_gyro) < 0.1, with_gyro
     assert max(abs(e) for e in registrations) > 0.2, registrations
