@@ -139,6 +139,10 @@ class _Run:
 
 # A MEMS gyro's scale factor is good to about half a percent.
 GYRO_SCALE_SIGMA = 0.005
+# Below these since the last registered scan (wheels, gyro), the robot stands still
+# (`standstill_hold_s`): a few times the gyro's drift over the hold, far below any motion.
+STILL_M = 0.005
+STILL_RAD = math.radians(0.05)
 
 
 class MotionModel:
@@ -338,6 +342,7 @@ class _Mapper:
         self._missing_frames: set[str] = set()
         self.registered = 0
         self.in_cabin_scans = 0
+        self.held_scans = 0  # stand-still scans that took the last registration's pose
         # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
         self.wheel_scale = WheelScale(cfg.odom_scale_min_m)
         self.wheel_totals = (0.0, 0.0)  # lidar . wheels and |wheels|^2 over finished runs
@@ -387,7 +392,12 @@ class _Mapper:
             # a scan posed by it would start the next registration a step too low (with every
             # third scan the climb came out 7 % short; with every scan within 1-3 cm).
             stride = 1
-        if state.scan_index % stride != 0 and state.stamp_ns is not None:
+        skip = state.stamp_ns is not None and state.scan_index % stride != 0
+        if state.stamp_ns is not None and not skip and self._standing_still(stamp_ns):
+            self.held_scans += 1
+            skip = True
+        if skip:
+            assert state.stamp_ns is not None
             delta = self._predict(stamp_ns)
             dt = (stamp_ns - state.stamp_ns) / 1e9
             predicted = state.pose @ delta
@@ -432,7 +442,7 @@ class _Mapper:
                 gyro_var = self.motion.heading_var((ref_ns - since_ns) / 1e9,
                                                    rotation_angle_rad(inverse(since_pose) @ predicted))
             match = self.matcher.match(points, predicted, gyro_prior=gyro_prior,
-                                       gyro_var_rad2=gyro_var, refine=self._needs_keyframe)
+                                       gyro_var_rad2=gyro_var)
         else:
             match = self.matcher.match(points, predicted)
         if match.registered:
@@ -450,6 +460,25 @@ class _Mapper:
             scan_pose = pose @ back
         self._record(stamp_ns, scan_pose, ref_ns, pose,
                      inverse(state.pose) @ pose if state.stamp_ns is not None else delta, dt)
+
+    def _standing_still(self, stamp_ns: int) -> bool:
+        """Whether the wheels and the gyro say the robot has not moved since the last registered
+        scan, and that was less than `standstill_hold_s` ago: then the scan needs no registration.
+
+        Without wheel odometry (or a gyro) nothing independent of the lidar says so, and every
+        scan is registered.
+        """
+        if self._registered is None or self.cfg.standstill_hold_s <= 0:
+            return False
+        since_ns, _ = self._registered
+        if stamp_ns - since_ns > self.cfg.standstill_hold_s * 1e9:
+            return False
+        wheels = self.motion.wheels(since_ns, stamp_ns)
+        gyro = self.motion.gyro
+        if wheels is None or gyro is None or not self.motion.rotation_from_gyro(since_ns, stamp_ns):
+            return False
+        turn = rotation_angle_rad(gyro.delta(since_ns, stamp_ns))
+        return bool(np.linalg.norm(wheels[:3, 3]) < STILL_M and turn < STILL_RAD)
 
     def _record(self, stamp_ns: int, scan_pose: F64, ref_ns: int, ref_pose: F64, delta: F64,
                 dt: float) -> None:
@@ -660,6 +689,7 @@ class _Mapper:
             "registered": float(self.registered),
             "registration_failures": float(self.matcher.failures),
             "in_cabin_scans": float(self.in_cabin_scans),
+            "held_scans": float(self.held_scans),
             "cabin_points_dropped": float(self.cabin.dropped if self.cabin else 0),
             "max_local_map_points": float(self.max_map_points),
             "wheel_scale_dot": self.wheel_totals[0] + self.wheel_scale.dot,
@@ -715,6 +745,7 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "gyro_overruled": counters.get("gyro_overruled", 0.0),
         "heading_blended": counters.get("heading_blended", 0.0),
         "registrations_refined": counters.get("registrations_refined", 0.0),
+        "held_scans": counters.get("held_scans", 0.0),
         "keyframes": float(len(keyframes)),
         "odometry_edges": float(sum(e.kind == "odometry" for e in edges)),
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),
