@@ -84,11 +84,13 @@ class MappingConfig(BaseModel):
         "to 0.5 cm RMS, and a stand-still 0.6 m past its keyframe from 2.4 to 0.4-1.3 cm",
     )
     standstill_hold_s: float = Field(
-        2.0, ge=0.0,
-        description="while the wheel odometry and the gyro say the robot has not moved since "
-        "the last registered scan (under 5 mm and 0.05 degrees), scans take that pose instead of "
-        "being registered again, for up to this long (0: register as at any other time). A "
-        "stand-still's scans then share one pose, and its registrations' time goes elsewhere",
+        0.0, ge=0.0,
+        description="a speed knob, off by default: while the wheel odometry and the gyro say the "
+        "robot has not moved since the last registered scan (under 5 mm and 0.05 degrees), scans "
+        "take that pose instead of being registered again, for up to this long (0: off). At 2 s, "
+        "two-floor registered 19 percent fewer scans, but a stand-still then carries one "
+        "registration's error instead of the median of many: two-floor's checkpoints 32.0 -> 33.4 "
+        "mm summed, two-floor-2d's 21.3 -> 28.2",
     )
     local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
     local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")

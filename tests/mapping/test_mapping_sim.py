@@ -80,8 +80,8 @@ def test_every_scan_has_a_pose_and_edges_are_well_formed(
     # Every registration gets the fine pass, those whose heading the gyro overruled too; the
     # scans of a stand-still take the last registration's pose (`standstill_hold_s`).
     stats = result.stats
-    assert stats["registrations_refined"] == stats["registered"] + stats["gyro_overruled"] == 176
-    assert stats["held_scans"] == 37
+    assert stats["registrations_refined"] == stats["registered"] + stats["gyro_overruled"] == 213
+    assert stats["held_scans"] == 0
     # The second visit starts at the floor's elevation (3.5 m); its first keyframe is made
     # once the robot is out of the cabin, a metre or two of wheel odometry later.
     first_of_1 = next(kf for kf in result.keyframes if kf.visit == 1)
@@ -137,15 +137,16 @@ def test_no_loop_between_floors_of_three_floor_revisit(sim_run: Callable[..., Pa
 def test_standstill_hold_replaces_registrations_one_for_one(
     tiny: Path, tiny_result: MappingResult, gt_floors: SegFn
 ) -> None:
-    held = tiny_result.stats["held_scans"]
-    off = _run(tiny, gt_floors, standstill_hold_s=0.0)
-    assert held > 0 and off.stats["held_scans"] == 0
+    off = tiny_result  # the default: no hold
+    on = _run(tiny, gt_floors, standstill_hold_s=2.0)
+    held = on.stats["held_scans"]
+    assert held == 37 and off.stats["held_scans"] == 0
     # Each held scan is one registration fewer, and nothing else changes hands.
-    assert off.stats["registrations_refined"] == tiny_result.stats["registrations_refined"] + held
-    assert len(off.scan_poses) == len(tiny_result.scan_poses)
+    assert off.stats["registrations_refined"] == on.stats["registrations_refined"] + held
+    assert len(off.scan_poses) == len(on.scan_poses)
     # At the checkpoints (stand-stills) the poses agree within a few millimetres either way.
-    stamps_s = np.array([sp.stamp_ns for sp in tiny_result.scan_poses]) / 1e9
-    on_xyz, off_xyz = (_positions(r) for r in (tiny_result, off))
+    stamps_s = np.array([sp.stamp_ns for sp in on.scan_poses]) / 1e9
+    on_xyz, off_xyz = (_positions(r) for r in (on, off))
     points = read_points_csv(tiny / "gt_points.csv")
     assert len(points) == 3
     for p in points:
@@ -163,10 +164,9 @@ def test_2d_laserscan_variant_on_tiny_2d(sim_run: Callable[..., Path], gt_floors
     result = _run(folder, gt_floors)
     assert len(result.scan_poses) == n_scans
     assert {kf.floor_id for kf in result.keyframes} == {0, 1}
-    # Every registered scan gets the fine pass; the stand-stills' scans are held (962 scans
-    # were registered without the hold).
-    assert result.stats["registrations_refined"] == result.stats["registered"] == 742
-    assert result.stats["held_scans"] == 220
+    # The 2D matcher keeps its map's k-d tree, so every registered scan gets the fine pass.
+    assert result.stats["registrations_refined"] == result.stats["registered"] == 962
+    assert result.stats["held_scans"] == 0
     # Planar: every keyframe is level and sits at its floor's elevation.
     for kf in result.keyframes:
         assert kf.pose[2, 2] == pytest.approx(1.0, abs=1e-9)
