@@ -86,10 +86,13 @@ def _cloud(points: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
     return pcd
 
 
-# The fine pass's iteration cap. On floors that share little (stairs seed 2's floors 1 and 2, fitness
+# The fine pass's iterations: SCORE_ITERATIONS for every place the starts meet, then the winner
+# goes on to FINE_ITERATIONS. On floors that share little (stairs seed 2's floors 1 and 2, fitness
 # 0.27) the fine pass creeps along a shallow valley: stopped at 15 iterations, inputs a few
 # millimetres apart gave corrections 6 cm and 0.15 degrees apart (the top floor's checkpoints 26
 # vs 59 mm); at 100 they agree within 1 cm and 0.03 degrees, and 300 moves them by a millimetre.
+# Running every place to 100 cost a second per pair of floors; only the winner needs it.
+SCORE_ITERATIONS = 15
 FINE_ITERATIONS = 100
 
 # The inter-floor ICP's prior on roll and pitch, weak: a degree of tilt weighs as a metre of
@@ -233,8 +236,9 @@ def register_floors(
     fine = _Target(target)
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
     fine_source = np.asarray(source.points)
-    candidates: list[tuple[float, float, F64]] = []
-    refined: list[tuple[F64, tuple[float, float, F64]]] = []  # coarse result -> its candidate
+    # (fitness, inlier RMSE, x-y-yaw correction, the fine pass's pose with its tilt)
+    candidates: list[tuple[float, float, F64, F64]] = []
+    refined: list[tuple[F64, tuple[float, float, F64, F64]]] = []  # coarse result -> candidate
     for start in starts:
         current = start
         for radius in (voxel_m * 5.0, voxel_m * 2.5):
@@ -242,10 +246,10 @@ def register_floors(
         # Starts usually meet in the coarse passes: the fine pass and the score once per place.
         done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
         if done is None:
-            best = project_xyyaw(fine.icp(fine_source, current, voxel_m, tilt=True,
-                                           iterations=FINE_ITERATIONS))
+            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
+            best = project_xyyaw(pose)
             score = reg.evaluate_registration(source, target, voxel_m, best)
-            done = (float(score.fitness), float(score.inlier_rmse), best)
+            done = (float(score.fitness), float(score.inlier_rmse), best, pose)
             refined.append((current, done))
         candidates.append(done)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
@@ -256,7 +260,12 @@ def register_floors(
                           "no solution within the plausible correction")
     candidates = sorted(plausible, key=lambda c: -c[0])
     logger.debug("candidates %s", [(round(c[0], 3), np.round(c[2][:2, 3], 3).tolist()) for c in candidates])
-    best_fitness, best_rmse, best = candidates[0]
+    # The winner's fine pass runs on to convergence (FINE_ITERATIONS in all).
+    pose = fine.icp(fine_source, candidates[0][3], voxel_m, tilt=True,
+                    iterations=FINE_ITERATIONS - SCORE_ITERATIONS)
+    best = project_xyyaw(pose)
+    score = reg.evaluate_registration(source, target, voxel_m, best)
+    best_fitness, best_rmse = float(score.fitness), float(score.inlier_rmse)
     runner_up = max(
         (c[0] for c in candidates[1:] if _distinct(best, c[2], 4.0 * voxel_m, 3.0)), default=0.0
     )
