@@ -392,12 +392,9 @@ class _Mapper:
             # a scan posed by it would start the next registration a step too low (with every
             # third scan the climb came out 7 % short; with every scan within 1-3 cm).
             stride = 1
-        skip = state.stamp_ns is not None and state.scan_index % stride != 0
-        if state.stamp_ns is not None and not skip and self._standing_still(stamp_ns):
-            self.held_scans += 1
-            skip = True
-        if skip:
-            assert state.stamp_ns is not None
+        held = state.scan_index % stride == 0 and self._standing_still(stamp_ns)
+        self.held_scans += held
+        if state.stamp_ns is not None and (state.scan_index % stride != 0 or held):
             delta = self._predict(stamp_ns)
             dt = (stamp_ns - state.stamp_ns) / 1e9
             predicted = state.pose @ delta
@@ -466,7 +463,7 @@ class _Mapper:
         scan, and that was less than `standstill_hold_s` ago: then the scan needs no registration.
 
         Without wheel odometry (or a gyro) nothing independent of the lidar says so, and every
-        scan is registered.
+        scan is registered. False until a scan has been registered.
         """
         if self._registered is None or self.cfg.standstill_hold_s <= 0:
             return False
