@@ -156,6 +156,30 @@ def test_standstill_hold_replaces_registrations_one_for_one(
         assert gap < 0.005, p.label
 
 
+def test_turning_in_place_keeps_the_spot(tiny: Path, tiny_result: MappingResult,
+                                        gt_floors: SegFn) -> None:
+    """At P2 the robot turns 175 degrees on the spot (17.2-22.7 s after the start). Registered
+    freely, the scans drift as it turns; held at the stand-still's median (`turn_hold_m`),
+    the spot stays where the stand-still before the turn put it."""
+    gt_ns, gt_poses = read_tum(tiny / "gt_trajectory.tum")
+    start_s = gt_ns[0] / 1e9
+
+    def drift_mm(result: MappingResult) -> float:
+        stamps_s = np.array([sp.stamp_ns for sp in result.scan_poses]) / 1e9 - start_s
+        error = _positions(result)[:, :2] - np.column_stack(
+            [np.interp(stamps_s, gt_ns / 1e9 - start_s, gt_poses[:, k, 3]) for k in range(2)])
+        before = np.median(error[(stamps_s > 15.5) & (stamps_s < 17.0)], axis=0)
+        during = error[(stamps_s > 17.3) & (stamps_s < 22.6)]
+        return float(1e3 * np.abs(during - before).max())
+
+    held = tiny_result.stats["turn_held"]
+    off = _run(tiny, gt_floors, turn_hold_m=0.0)
+    assert held == 41 and off.stats["turn_held"] == 0
+    assert off.stats["registered"] == tiny_result.stats["registered"]  # held, not skipped
+    assert drift_mm(tiny_result) < 2.0  # 0.6 mm
+    assert drift_mm(off) > 5.0  # 8.9 mm
+
+
 def test_2d_laserscan_variant_on_tiny_2d(sim_run: Callable[..., Path], gt_floors: SegFn) -> None:
     folder = sim_run("tiny-2d")
     with open_log(folder / "log.mcap") as src:
