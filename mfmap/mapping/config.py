@@ -97,7 +97,7 @@ class MappingConfig(BaseModel):
         description="turning in place: while the wheel odometry has moved less than this since "
         "the robot stopped, a registration that the gyro says turned more than a degree keeps "
         "the median x, y of the stand-still's registrations and takes only its rotation and "
-        "height (0: off; not on stair walks, nor with a 2D lidar). Registered freely, the scans "
+        "height (0: off; not on stair walks). Registered freely, the scans "
         "drift 1-2 cm per 100 degrees of turn: the checkpoint after an elevator ride, where the "
         "robot turns out of the cabin, was 2.7-3.6 cm off in x (two-floor seed 0, "
         "three-floor-revisit seed 1), now 0.1-1.3 cm",

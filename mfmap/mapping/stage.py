@@ -446,10 +446,9 @@ class _Mapper:
         else:
             match = self.matcher.match(points, predicted)
         pose = match.pose
-        # Not on stairs (the climb is the registration's: held, a landing's turn left a 3.5 m
-        # climb 6.4 cm short, past the tests' 5 cm), nor with a 2D lidar (two-floor-2d's
-        # ground floor went from 3.5 to 6.9 mm).
-        turn_hold = match.registered and not on_stairs and not self.planar
+        # Not on stairs: the climb is the registration's, and held, a landing's turn left a
+        # 3.5 m climb 6.4 cm short, past the tests' 5 cm.
+        turn_hold = match.registered and not on_stairs
         spot = self._in_place(ref_ns, pose) if turn_hold else None
         if spot is not None:
             pose = pose.copy()
