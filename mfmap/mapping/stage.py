@@ -469,6 +469,18 @@ class _Mapper:
         self._record(stamp_ns, scan_pose, ref_ns, pose,
                      inverse(state.pose) @ pose if state.stamp_ns is not None else delta, dt)
 
+    def _wheel_distance(self, from_ns: int, to_ns: int) -> float | None:
+        """How far the wheels say the robot moved between the stamps (None without them)."""
+        wheels = self.motion.wheels(from_ns, to_ns)
+        return None if wheels is None else float(np.linalg.norm(wheels[:3, 3]))
+
+    def _gyro_turn(self, from_ns: int, to_ns: int) -> float | None:
+        """How far the gyro says the robot turned between the stamps (rad; None without it)."""
+        gyro = self.motion.gyro
+        if gyro is None or not self.motion.rotation_from_gyro(from_ns, to_ns):
+            return None
+        return rotation_angle_rad(gyro.delta(from_ns, to_ns))
+
     def _in_place(self, stamp_ns: int, pose: F64) -> F64 | None:
         """The x, y to hold a registration at while the robot turns in place, else None.
 
@@ -480,13 +492,13 @@ class _Mapper:
         if self._registered is None or self.cfg.turn_hold_m <= 0:
             return None
         since_ns, since_pose = self._registered
-        gyro = self.motion.gyro
-        wheels = self.motion.wheels(self._still[0][0] if self._still else since_ns, stamp_ns)
-        if (wheels is None or gyro is None or not self.motion.rotation_from_gyro(since_ns, stamp_ns)
-                or np.linalg.norm(wheels[:3, 3]) >= self.cfg.turn_hold_m):
+        moved = self._wheel_distance(self._still[0][0] if self._still else since_ns, stamp_ns)
+        turn = None if moved is None or moved >= self.cfg.turn_hold_m else self._gyro_turn(
+            since_ns, stamp_ns)
+        if turn is None:
             self._still.clear()
             return None
-        if rotation_angle_rad(gyro.delta(since_ns, stamp_ns)) <= TURN_MIN_RAD:
+        if turn <= TURN_MIN_RAD:
             self._still.append((stamp_ns, pose[:2, 3].copy()))
             return None
         if not self._still:
@@ -505,12 +517,9 @@ class _Mapper:
         since_ns, _ = self._registered
         if stamp_ns - since_ns > self.cfg.standstill_hold_s * 1e9:
             return False
-        wheels = self.motion.wheels(since_ns, stamp_ns)
-        gyro = self.motion.gyro
-        if wheels is None or gyro is None or not self.motion.rotation_from_gyro(since_ns, stamp_ns):
-            return False
-        turn = rotation_angle_rad(gyro.delta(since_ns, stamp_ns))
-        return bool(np.linalg.norm(wheels[:3, 3]) < STILL_M and turn < STILL_RAD)
+        moved = self._wheel_distance(since_ns, stamp_ns)
+        turn = self._gyro_turn(since_ns, stamp_ns)
+        return moved is not None and turn is not None and moved < STILL_M and turn < STILL_RAD
 
     def _record(self, stamp_ns: int, scan_pose: F64, ref_ns: int, ref_pose: F64, delta: F64,
                 dt: float) -> None:
