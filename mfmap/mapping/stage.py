@@ -830,10 +830,15 @@ def _chunks(timeline: Timeline) -> list[_Chunk]:
         if any(tr.kind == TransitionKind.ELEVATOR and previous_start <= tr.start_ns < start
                for tr in timeline.transitions):
             starts.append(v)
+    # A ride ends where the next visit starts, and a scan stamped exactly there is still the
+    # ride's (`Timeline.at`): it stays in the chunk the ride hangs off. Started with the next
+    # chunk, it was posed from that chunk's held pose as if the whole ride lay ahead of it, 7.4 m
+    # below the floor on three-floor-revisit seed 1's 8 m ride down, and the trajectory's export
+    # then scaled the ride's height profile to that scan (the ride came out half as deep).
     out = []
     for k, v in enumerate(starts):
-        start_ns = None if k == 0 else timeline.visits[v][1]
-        end_ns = None if k + 1 == len(starts) else timeline.visits[starts[k + 1]][1] - 1
+        start_ns = None if k == 0 else timeline.visits[v][1] + 1
+        end_ns = None if k + 1 == len(starts) else timeline.visits[starts[k + 1]][1]
         out.append(_Chunk(v, start_ns, end_ns))
     return out
 

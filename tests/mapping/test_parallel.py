@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,37 @@ def test_chunks_split_at_elevator_rides_only(sim_run: Callable[..., Path], gt_fl
     visits = seg.visits()
     assert [c.first_visit for c in chunks] == [0, 1]
     assert chunks[0].start_ns is None and chunks[1].end_ns is None
-    assert chunks[0].end_ns == visits[1][1] - 1 and chunks[1].start_ns == visits[1][1]
+    assert chunks[0].end_ns == visits[1][1] and chunks[1].start_ns == visits[1][1] + 1
+
+
+def test_a_scan_at_the_rides_end_stays_on_the_ride(sim_run: Callable[..., Path],
+                                                   gt_floors: SegFn) -> None:
+    """A scan stamped exactly at a ride's end (three-floor-revisit seed 1's ride down) belongs
+    to the ride, and so to the chunk before it: started with the next chunk it was posed from
+    that chunk's held pose as if the whole ride lay ahead, 7.4 m below the floor it reached."""
+    folder = sim_run("tiny")  # floor 0, elevator up 3.5 m, floor 1
+    seg = gt_floors(folder)
+    ride = seg.transitions[0]
+    with open_log(folder / "log.mcap") as src:
+        lidar = np.array([c.stamp_ns for c in src.clouds()], dtype=np.int64)
+    end_ns = int(lidar[np.argmin(np.abs(lidar - ride.end_ns))])
+    floors = tuple(replace(f, visits=tuple((end_ns, e) if s == ride.end_ns else (s, e)
+                                           for s, e in f.visits)) for f in seg.floors)
+    seg = replace(seg, floors=floors, transitions=(replace(ride, end_ns=end_ns),))
+    assert Timeline(seg).at(end_ns).kind == "ride"
+    chunks = _chunks(Timeline(seg))
+    assert chunks[0].end_ns == end_ns and chunks[1].start_ns == end_ns + 1
+    result = _run(folder, seg, 2)
+    # Posed, as every ride scan, off the last keyframe before the ride (visit 0). Off visit 1's
+    # first keyframe, the pose was that chunk's start plus the ride's whole height change: right
+    # here only because tiny rides up from elevation 0.
+    visit = {kf.id: kf.visit for kf in result.keyframes}
+    assert [visit[sp.keyframe] for sp in result.scan_poses if sp.stamp_ns == end_ns] == [0]
+    stamps, poses = scan_trajectory(result)
+    at_end = int(np.flatnonzero(stamps == end_ns)[0])
+    # Up the whole ride (3.5 m) and level with the next scan, on the floor reached.
+    assert abs(poses[at_end][2, 3] - 3.5) < 0.05
+    assert abs(poses[at_end][2, 3] - poses[at_end + 1][2, 3]) < 0.05
 
 
 def test_two_workers_are_reproducible_and_as_accurate(sim_run: Callable[..., Path],
