@@ -3,3 +3,7 @@
 from __future__ import annotations
 
 __version__ = "0.1.0"
+
+from mfmap.threads import limit_threads  # light: imports no numeric library
+
+__all__ = ["__version__", "limit_threads"]

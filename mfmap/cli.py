@@ -20,6 +20,7 @@ from rich.console import Console
 
 from mfmap import __version__
 from mfmap.errors import MfmapError
+from mfmap.threads import limit_threads
 
 if TYPE_CHECKING:
     from mfmap.config import MfmapConfig
@@ -108,22 +109,6 @@ class RichProgress:
                     bar.update(task, total=total)
 
             yield _Stage()
-
-
-def _limit_threads(threads: int) -> None:
-    """Cap the thread pools of open3d (OpenMP) and GTSAM (TBB) before they are loaded.
-
-    Parallel sums in those libraries make results differ in the last bits between runs; with one
-    thread a build is bit-for-bit reproducible. TBB sizes its pool from the CPU affinity mask, so
-    the process is kept on one CPU, chosen by pid so that parallel builds spread over the machine.
-    """
-    os.environ["OMP_NUM_THREADS"] = str(threads)
-    if hasattr(os, "sched_getaffinity"):
-        cpus = sorted(os.sched_getaffinity(0))
-        if threads < len(cpus):
-            start = os.getpid() % len(cpus)
-            keep = {cpus[(start + i) % len(cpus)] for i in range(threads)}
-            os.sched_setaffinity(0, keep)
 
 
 def _parse_topics(items: list[str] | None) -> dict[str, str]:
@@ -262,7 +247,8 @@ def build(
             "--threads",
             min=1,
             help="CPU threads for the numeric libraries. 1 (default) gives bit-identical "
-            "output run to run; more lets open3d and GTSAM sum in parallel (about 1e-6 m apart).",
+            "output run to run; more lets open3d and GTSAM sum in parallel, and runs then differ "
+            "(by centimetres on some logs: the odometry amplifies the last bits).",
         ),
     ] = 1,
     topic: TopicOpt = None,
@@ -270,7 +256,7 @@ def build(
 ) -> None:
     """The whole pipeline: floors, per-floor mapping, building graph, exports."""
     cfg = _load(config, topic)
-    _limit_threads(threads)
+    limit_threads(threads)
     from mfmap.pipeline import build as run_build
     from mfmap.pipeline import render_summary
 

@@ -82,9 +82,14 @@ def build(
     force: bool = False,
     progress: Progress | None = None,
 ) -> BuildResult:
-    """Build the building map of `log` into the folder `out`."""
+    """Build the building map of `log` into the folder `out`.
+
+    Bit-for-bit reproducible only when the process called `mfmap.limit_threads()` before it
+    imported this module (as `mfmap build` does); otherwise the report carries a warning.
+    """
     from mfmap.export.write import write_outputs
     from mfmap.ingest import open_log
+    from mfmap.threads import unlimited_threads
 
     started = time.perf_counter()
     progress = progress or NullProgress()
@@ -92,6 +97,9 @@ def build(
     _check_output(out, force)
     timings: dict[str, float] = {}
     warnings: list[str] = []
+    threads = unlimited_threads()
+    if threads is not None:
+        warnings.append(f"build: {threads}")
     partial = _make_partial(out)
     try:
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
