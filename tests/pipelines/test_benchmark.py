@@ -7,7 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipelines.benchmark import BuildFigures, run_child, scaling_table, tum_span_s
+from pipelines.benchmark import (
+    BuildFigures,
+    ScenarioFigures,
+    median_run,
+    run_child,
+    scaling_table,
+    scenario_table,
+    tum_span_s,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -55,6 +63,18 @@ def test_scaling_verdict_against_the_issue_limits() -> None:
     assert "PASS" in text and "FAIL" not in text
     _, bad = scaling_table([_fig(1, 10.0, 400.0), _fig(2, 25.0, 500.0), _fig(4, 45.0, 610.0)], scales)
     assert not bad["time_ok"] and not bad["memory_ok"]
+
+
+def test_repeated_builds_report_the_median_run_and_the_spread() -> None:
+    runs = [_fig(1, 45.7, 560.0), _fig(1, 34.3, 580.0), _fig(1, 40.2, 558.0)]
+    best = median_run(runs)
+    assert best.wall_s == 40.2 and best.peak_rss_mb == 580.0 and best.walls_s == [45.7, 34.3, 40.2]
+    row = scenario_table([ScenarioFigures(best)])
+    assert "| x1 | 60.0 | 600 | 40.20 (median of 3: 34.30-45.70) | 1.5x |" in row
+    assert median_run([_fig(1, 30.0, 500.0), _fig(1, 50.0, 500.0)]).wall_s == 30.0
+    broken = BuildFigures("x1", "log.mcap", 60.0, 0, 3.0, 90.0, False, "boom")
+    assert median_run([runs[0], broken]) is broken
+    assert "40.20 |" in scenario_table([ScenarioFigures(runs[2])])
 
 
 def test_pin_cpus_claims_a_free_cpu(tmp_path: Path) -> None:
