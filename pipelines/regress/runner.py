@@ -178,8 +178,9 @@ def pin_cpus(n: int, lock_dir: Path | None = None) -> list[int]:
     """Restrict this process to `n` CPUs that no other regression worker on the node holds.
 
     open3d's and GTSAM's thread pools (OpenMP, TBB) size themselves from the CPUs a process may
-    use, and a multi-threaded reduction sums in a different order from run to run (about 1e-8
-    relative in the trajectory metrics). Pinned to its declared CPU count, with one CPU a build
+    use, and a multi-threaded reduction sums in a different order from run to run: last bits,
+    which the odometry can grow to centimetres on some logs (stairs seed 2's top floor gave 20.0
+    and 58.3 mm in two multithreaded runs). Pinned to its declared CPU count, with one CPU a build
     is bit-identical wherever it runs. Each CPU is claimed with a lock file, so parallel workers
     (local pool or Ray tasks on one node) spread over the cores instead of piling onto one.
     """
