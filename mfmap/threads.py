@@ -26,8 +26,7 @@ def limit_threads(threads: int = 1) -> None:
     if threads < 1:
         raise ValueError(f"threads must be at least 1, got {threads}")
     global _late
-    loaded = [name for name in _LIBRARIES if name in sys.modules]
-    if loaded and _late is None:
+    if _late is None and any(name in sys.modules for name in _LIBRARIES):
         _late = unlimited_threads()  # what the libraries already run with stays
     os.environ["OMP_NUM_THREADS"] = str(threads)
     if hasattr(os, "sched_getaffinity"):

@@ -169,6 +169,26 @@ def bench_build(label: str, log: Path, gt_trajectory: Path | None, out: Path, th
     )
 
 
+def bench_build_repeated(label: str, log: Path, gt_trajectory: Path | None, out: Path,
+                         threads: int | None, repeat: int) -> BuildFigures:
+    """`repeat` builds of one log: the run of median wall time, with every run's wall time and
+    the highest peak memory (a shared machine's neighbours move a build's time by 20 % and more
+    from one run to the next; the median of a few is the figure to compare)."""
+    return median_run([bench_build(label, log, gt_trajectory, out, threads)
+                       for _ in range(max(1, repeat))])
+
+
+def median_run(runs: list[BuildFigures]) -> BuildFigures:
+    """The run of median wall time (the lower of the two middle ones), carrying every run's wall
+    time and the highest peak memory; the first failed run when any failed."""
+    failed = [r for r in runs if not r.ok]
+    if failed:
+        return failed[0]
+    median = sorted(runs, key=lambda r: r.wall_s)[(len(runs) - 1) // 2]
+    return replace(median, peak_rss_mb=max(r.peak_rss_mb for r in runs),
+                   walls_s=[r.wall_s for r in runs])
+
+
 def bench_mcap_floor(log: Path) -> PeerFigures:
     """Bare MCAP iteration of the same file (the ingest floor)."""
     run = run_child([sys.executable, "-c", _MCAP_FLOOR, str(log)])
@@ -231,26 +251,6 @@ def _sim(cache: Path, scenario: str, scale: float = 1.0) -> tuple[Path, Path]:
 
 # ---------------------------------------------------------------------------------------------
 # Markdown
-
-
-def bench_build_repeated(label: str, log: Path, gt_trajectory: Path | None, out: Path,
-                         threads: int | None, repeat: int) -> BuildFigures:
-    """`repeat` builds of one log: the run of median wall time, with every run's wall time and
-    the highest peak memory (a shared machine's neighbours move a build's time by 20 % and more
-    from one run to the next; the median of a few is the figure to compare)."""
-    return median_run([bench_build(label, log, gt_trajectory, out, threads)
-                       for _ in range(max(1, repeat))])
-
-
-def median_run(runs: list[BuildFigures]) -> BuildFigures:
-    """The run of median wall time (the lower of the two middle ones), carrying every run's wall
-    time and the highest peak memory; the first failed run when any failed."""
-    failed = [r for r in runs if not r.ok]
-    if failed:
-        return failed[0]
-    median = sorted(runs, key=lambda r: r.wall_s)[(len(runs) - 1) // 2]
-    return replace(median, peak_rss_mb=max(r.peak_rss_mb for r in runs),
-                   walls_s=[r.wall_s for r in runs])
 
 
 def _wall_cell(b: BuildFigures) -> str:

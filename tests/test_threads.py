@@ -58,7 +58,7 @@ def test_a_library_build_says_when_it_is_not_reproducible(sim_run: Callable[...,
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs to be unpinned")
 def test_limit_threads_pins_one_cpu_and_knows_when_it_came_too_late() -> None:
-    check = ("import os, mfmap.threads as t; {before} mfmap_limit = t.limit_threads(); "
+    check = ("import os, mfmap.threads as t; {before} t.limit_threads(); "
              "print(len(os.sched_getaffinity(0)), os.environ['OMP_NUM_THREADS'], "
              "t.unlimited_threads() is None)")
     assert _python(check.format(before="")) == "1 1 True"
