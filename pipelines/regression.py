@@ -70,6 +70,8 @@ def _progress(result: LogResult) -> None:
         names = "changes " + names
     detail = result.outcome.error if result.outcome.error else names
     line = f"{result.verdict.value:<11} {result.name} ({result.outcome.wall_s:.1f} s)"
+    if result.regressions and result.other_machine:
+        line += " [baseline made on another machine]"
     print(line + (f": {detail}" if detail else ""), file=sys.stderr, flush=True)
 
 

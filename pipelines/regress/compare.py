@@ -81,9 +81,11 @@ def _status(
 
 
 def judge(
-    outcome: LogOutcome, baseline: Mapping[str, float] | None, manifest: Manifest
+    outcome: LogOutcome, baseline: Mapping[str, float] | None, manifest: Manifest,
+    baseline_machine: str | None = None,
 ) -> LogResult:
-    """The verdict for one log's outcome against its baseline (None: the baseline lacks it)."""
+    """The verdict for one log's outcome against its baseline (None: the baseline lacks it),
+    made on `baseline_machine` (None: the baseline does not say)."""
     if not outcome.ok:
         return LogResult(outcome, [], Verdict.ERROR)
     if baseline is None:
@@ -94,7 +96,7 @@ def judge(
         outcome.metrics, baseline, tolerances, manifest.is_higher_better, manifest.is_ignored
     )
     bad = any(c.status in (CheckStatus.REGRESSED, CheckStatus.MISSING) for c in checks)
-    return LogResult(outcome, checks, Verdict.REGRESSED if bad else Verdict.PASS)
+    return LogResult(outcome, checks, Verdict.REGRESSED if bad else Verdict.PASS, baseline_machine)
 
 
 def read_baseline(path: Path) -> dict[str, dict[str, float]]:
@@ -117,6 +119,25 @@ def read_baseline(path: Path) -> dict[str, dict[str, float]]:
     return out
 
 
+def baseline_machines(path: Path) -> dict[str, str]:
+    """log name -> the machine its baseline entry was made on, for the entries that say."""
+    try:
+        logs = json.loads(path.read_text()).get("logs", {})
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return {}
+    return {name: entry["machine"] for name, entry in logs.items()
+            if isinstance(entry, dict) and isinstance(entry.get("machine"), str)}
+
+
+def updated_machines(previous: Mapping[str, str], results: list[LogResult]) -> dict[str, str]:
+    """The machines of `updated_baseline`: a rebuilt log's is where it was rebuilt."""
+    out = dict(previous)
+    for result in results:
+        if result.outcome.ok:
+            out[result.name] = result.outcome.machine
+    return out
+
+
 def updated_baseline(
     previous: Mapping[str, Mapping[str, float]], results: list[LogResult]
 ) -> dict[str, dict[str, float]]:
@@ -132,19 +153,25 @@ def updated_baseline(
 
 
 def write_baseline(
-    path: Path, baseline: Mapping[str, Mapping[str, float]], manifest_name: str
+    path: Path, baseline: Mapping[str, Mapping[str, float]], manifest_name: str,
+    machines: Mapping[str, str] | None = None,
 ) -> None:
-    """Rewrite the baseline atomically, keys sorted so a diff shows only what changed."""
+    """Rewrite the baseline atomically, keys sorted so a diff shows only what changed; each
+    entry with the machine it was made on, where `machines` knows it."""
     from mfmap import __version__
+
+    def entry(name: str, metrics: Mapping[str, float]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        if machines and machines.get(name):
+            out["machine"] = machines[name]
+        out["metrics"] = {k: (v if _finite(v) else None) for k, v in sorted(metrics.items())}
+        return out
 
     data = {
         "format": BASELINE_FORMAT,
         "manifest": manifest_name,
         "mfmap_version": __version__,
-        "logs": {
-            name: {"metrics": {k: (v if _finite(v) else None) for k, v in sorted(m.items())}}
-            for name, m in sorted(baseline.items())
-        },
+        "logs": {name: entry(name, m) for name, m in sorted(baseline.items())},
     }
     write_text_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 

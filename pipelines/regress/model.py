@@ -58,6 +58,7 @@ class LogOutcome:
     log: str | None = None
     error: str | None = None  # one line, when not ok
     stage: str | None = None  # which step failed: simulate, build, eval
+    machine: str = ""  # where it ran (`machine.machine_fingerprint`)
 
 
 @dataclass(frozen=True)
@@ -122,6 +123,13 @@ class LogResult:
     outcome: LogOutcome
     checks: list[MetricCheck]
     verdict: Verdict
+    baseline_machine: str | None = None  # where the baseline was made, if it says
+
+    @property
+    def other_machine(self) -> bool:
+        """The baseline was made on another machine (or does not say where): figures can
+        differ with no change to the code."""
+        return bool(self.checks) and self.baseline_machine != self.outcome.machine
 
     @property
     def name(self) -> str:
@@ -150,6 +158,8 @@ class LogResult:
             "wall_s": round(o.wall_s, 3),
             "error": o.error,
             "failed_stage": o.stage,
+            "machine": o.machine,
+            "baseline_machine": self.baseline_machine,
             "regressed_metrics": [c.metric for c in self.regressions],
             "metrics": {k: _json_num(v) for k, v in sorted(o.metrics.items())},
             "checks": [c.to_json() for c in self.checks],

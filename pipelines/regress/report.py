@@ -29,6 +29,7 @@ def markdown_summary(run: RunResult) -> str:
         f"{len(run.results)} logs on {run.backend} in {run.wall_s:.1f} s"
         + ("; baseline updated" if run.baseline_updated else ""),
         "",
+        *_machine_note(run.results),
         "| log | verdict | worst regression | regressed | improved | metrics | build+eval s |",
         "|---|---|---|---|---|---|---|",
     ]
@@ -51,6 +52,25 @@ def markdown_summary(run: RunResult) -> str:
             f"{improved} | {len(r.outcome.metrics)} | {r.outcome.wall_s:.1f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _machine_note(results: list[LogResult]) -> list[str]:
+    """A paragraph when some baselines were made on another machine than this run's."""
+    other = [r for r in results if r.other_machine]
+    if not other:
+        return []
+    made = sorted({r.baseline_machine for r in other if r.baseline_machine})
+    if any(not r.baseline_machine for r in other):
+        made.append("a machine the baseline does not record")
+    here = sorted({r.outcome.machine for r in other})
+    return [
+        f"{len(other)} of {len(results)} logs have a baseline made on another machine "
+        f"({' and '.join(made)}) than this run ({' and '.join(here)}). A build is bit-identical "
+        "only on the same CPU and libraries: there its figures can move with no change to the "
+        "code, by centimetres on chaotic logs (README, Limitations). Rebuild the baseline on "
+        "this machine (--update-baseline) to compare code with code.",
+        "",
+    ]
 
 
 def junit_xml(run: RunResult) -> str:

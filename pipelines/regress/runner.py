@@ -25,12 +25,15 @@ from typing import Any
 from mfmap.config import merge_dicts, read_yaml_mapping
 from mfmap.errors import MfmapError
 from pipelines.regress.compare import (
+    baseline_machines,
     flatten_metrics,
     judge,
     read_baseline,
     updated_baseline,
+    updated_machines,
     write_baseline,
 )
+from pipelines.regress.machine import machine_fingerprint
 from pipelines.regress.manifest import LogEntry, Manifest, ManifestError, Simulate
 from pipelines.regress.model import LogJob, LogOutcome, LogResult, RunResult, Verdict
 from pipelines.regress.report import sort_results, write_reports
@@ -270,6 +273,7 @@ def run_job(job: LogJob, reraise: bool = False) -> LogOutcome:
         wall_s=time.perf_counter() - start,
         out_dir=job.out_dir,
         log=log,
+        machine=machine_fingerprint(),
     )
 
 
@@ -430,6 +434,7 @@ def run_regression(
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = make_jobs(manifest, out_dir)
     baseline = read_baseline(manifest.baseline)
+    machines = baseline_machines(manifest.baseline)
     if use_ray:
         init_ray(ray_address)
         import ray
@@ -443,16 +448,18 @@ def run_regression(
 
     results: list[LogResult] = []
     for outcome in outcomes:
-        result = judge(outcome, baseline.get(outcome.name), manifest)
+        result = judge(outcome, baseline.get(outcome.name), manifest, machines.get(outcome.name))
         if update_baseline and result.verdict is not Verdict.ERROR:
             # The checks against the old baseline stay in the reports: what this update changes.
-            result = LogResult(result.outcome, result.checks, Verdict.UPDATED)
+            result = LogResult(result.outcome, result.checks, Verdict.UPDATED,
+                               result.baseline_machine)
         results.append(result)
         if on_result is not None:
             on_result(result)
 
     if update_baseline:
-        write_baseline(manifest.baseline, updated_baseline(baseline, results), manifest.name)
+        write_baseline(manifest.baseline, updated_baseline(baseline, results), manifest.name,
+                       updated_machines(machines, results))
     run = RunResult(
         manifest=manifest.name,
         backend=backend,

@@ -12,11 +12,13 @@ from pathlib import Path
 import pytest
 
 from pipelines.regress.compare import (
+    baseline_machines,
     compare_metrics,
     flatten_metrics,
     judge,
     read_baseline,
     updated_baseline,
+    updated_machines,
     write_baseline,
 )
 from pipelines.regress.manifest import Manifest, ManifestError, Tolerance, Tolerances, load_manifest
@@ -46,7 +48,8 @@ def manifest(write_manifest: Callable[..., Path]) -> Manifest:
     )
 
 
-def _outcome(name: str, metrics: dict[str, float], error: str | None = None) -> LogOutcome:
+def _outcome(name: str, metrics: dict[str, float], error: str | None = None,
+             machine: str = "") -> LogOutcome:
     return LogOutcome(
         name=name,
         ok=error is None,
@@ -55,6 +58,7 @@ def _outcome(name: str, metrics: dict[str, float], error: str | None = None) -> 
         out_dir=f"/tmp/{name}",
         error=error,
         stage="build" if error else None,
+        machine=machine,
     )
 
 
@@ -206,6 +210,48 @@ def test_baseline_update_keeps_failed_logs_and_is_atomic(
     assert path.stat().st_mode & 0o044  # readable by others, as a committed file should be
     data = json.loads(path.read_text())
     assert data["manifest"] == "unit" and data["format"] == 1
+
+
+HERE = "x86_64 AMD EPYC [sse4_2 avx avx2 fma avx512f]; numpy 2.4.6, open3d 0.20.0"
+THERE = "x86_64 AMD EPYC [sse4_2 avx avx2 fma]; numpy 2.4.6, open3d 0.20.0"
+
+
+def test_baseline_records_each_logs_machine(
+    manifest: Manifest, eval_metrics: dict[str, float], tmp_path: Path
+) -> None:
+    path = tmp_path / "unit.json"
+    write_baseline(path, {"good": eval_metrics, "broken": eval_metrics}, "unit",
+                   {"good": THERE, "broken": THERE})
+    assert baseline_machines(path) == {"good": THERE, "broken": THERE}
+    results = [judge(_outcome("good", eval_metrics, machine=HERE), eval_metrics, manifest, THERE),
+               judge(_outcome("broken", {}, "boom", machine=HERE), eval_metrics, manifest, THERE)]
+    machines = updated_machines(baseline_machines(path), results)
+    assert machines == {"good": HERE, "broken": THERE}  # a failed build keeps its old entry
+    write_baseline(path, updated_baseline(read_baseline(path), results), "unit", machines)
+    assert baseline_machines(path) == {"good": HERE, "broken": THERE}
+    assert json.loads(path.read_text())["logs"]["good"]["machine"] == HERE
+    write_baseline(path, {"old": eval_metrics}, "unit")  # made before machines were recorded
+    assert baseline_machines(path) == {} and read_baseline(path)["old"] == eval_metrics
+
+
+def test_summary_says_when_the_baseline_is_another_machines(
+    manifest: Manifest, eval_metrics: dict[str, float]
+) -> None:
+    worse = dict(eval_metrics, **{"points.rmse_m": 0.2})
+    same = [judge(_outcome("good", eval_metrics, machine=HERE), eval_metrics, manifest, HERE),
+            judge(_outcome("worse", worse, machine=HERE), eval_metrics, manifest, HERE)]
+    text = markdown_summary(RunResult("unit", "local[1 workers]", 1.0, same))
+    assert "another machine" not in text
+    other = [judge(_outcome("good", eval_metrics, machine=HERE), eval_metrics, manifest, HERE),
+             judge(_outcome("worse", worse, machine=HERE), eval_metrics, manifest, THERE),
+             judge(_outcome("fresh", worse, machine=HERE), eval_metrics, manifest, None)]
+    assert [r.other_machine for r in other] == [False, True, True]
+    text = markdown_summary(RunResult("unit", "local[1 workers]", 1.0, other))
+    note = next(line for line in text.splitlines() if "another machine" in line)
+    assert note.startswith("2 of 3 logs have a baseline made on another machine")
+    assert f"({THERE} and a machine the baseline does not record) than this run ({HERE})" in note
+    logs = {log["name"]: log for log in results_json(RunResult("unit", "x", 1.0, other))["logs"]}
+    assert (logs["worse"]["baseline_machine"], logs["worse"]["machine"]) == (THERE, HERE)
 
 
 def test_bad_baseline_file(tmp_path: Path) -> None:
