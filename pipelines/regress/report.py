@@ -29,7 +29,7 @@ def markdown_summary(run: RunResult) -> str:
         f"{len(run.results)} logs on {run.backend} in {run.wall_s:.1f} s"
         + ("; baseline updated" if run.baseline_updated else ""),
         "",
-        *_machine_note(run.results),
+        *([] if run.baseline_updated else _machine_note(run.results)),
         "| log | verdict | worst regression | regressed | improved | metrics | build+eval s |",
         "|---|---|---|---|---|---|---|",
     ]

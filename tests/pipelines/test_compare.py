@@ -250,6 +250,8 @@ def test_summary_says_when_the_baseline_is_another_machines(
     note = next(line for line in text.splitlines() if "another machine" in line)
     assert note.startswith("2 of 3 logs have a baseline made on another machine")
     assert f"({THERE} and a machine the baseline does not record) than this run ({HERE})" in note
+    # A run that writes the baseline makes it this machine's: nothing to warn about.
+    assert "another machine" not in markdown_summary(RunResult("unit", "x", 1.0, other, True))
     logs = {log["name"]: log for log in results_json(RunResult("unit", "x", 1.0, other))["logs"]}
     assert (logs["worse"]["baseline_machine"], logs["worse"]["machine"]) == (THERE, HERE)
 
