@@ -26,15 +26,17 @@ def start_worker(cpus: Any) -> None:
 def worker_cpus(workers: int) -> list[int | None]:
     """A CPU for each worker, so each runs one thread (TBB sizes its pool from the affinity).
 
-    A build pinned to one CPU (`--threads 1`) spreads its workers from that CPU over the
-    machine; otherwise they share out the CPUs the build may use.
+    A build pinned to one CPU (`--threads 1`) spreads its workers over the machine from the CPU
+    after its own, so the first worker, started while the build's process reads the log, does
+    not share a CPU with it (on 2 CPUs the second worker takes the build's, idle by then);
+    otherwise they share out the CPUs the build may use.
     """
     if not hasattr(os, "sched_getaffinity"):
         return [None] * workers
     current = sorted(os.sched_getaffinity(0))
     total = os.cpu_count() or 1
     if len(current) == 1:
-        return [(current[0] + k) % total for k in range(workers)]
+        return [(current[0] + 1 + k) % total for k in range(workers)]
     return [current[k % len(current)] for k in range(workers)]
 
 
@@ -46,8 +48,10 @@ def warm_up() -> None:
 
 
 @contextlib.contextmanager
-def worker_pool(workers: int, warm: bool = True) -> Iterator[Executor]:
-    """`workers` pinned processes, started now and warmed up while the caller goes on.
+def worker_pool(workers: int, warm: bool | int = True) -> Iterator[Executor]:
+    """`workers` pinned processes; `warm` of them (True: all) started now and warmed up while
+    the caller goes on, the others when the first jobs come (a spawn pool starts a process per
+    job until it has them all).
 
     One pool serves every parallel stage of a build (mapping, then the maps' second pass), so
     each worker pays its start-up (~1 s: a spawned interpreter importing open3d) once.
@@ -62,7 +66,6 @@ def worker_pool(workers: int, warm: bool = True) -> Iterator[Executor]:
         cpus.put(cpu)
     with ProcessPoolExecutor(workers, mp_context=context, initializer=start_worker,
                              initargs=(cpus,)) as pool:
-        if warm:
-            for _ in range(workers):  # submitted together, so each goes to a new process
-                pool.submit(warm_up)
+        for _ in range(workers if warm is True else min(int(warm), workers)):
+            pool.submit(warm_up)  # submitted together, so each goes to a new process
         yield pool
