@@ -75,3 +75,20 @@ def test_limit_threads_rejects_zero() -> None:
 
     with pytest.raises(ValueError, match="at least 1"):
         limit_threads(0)
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs")
+def test_the_first_worker_takes_a_cpu_the_build_does_not_use() -> None:
+    """The pool starts while the build's process reads the log: its first worker must not
+    share that process's CPU (`mfmap.mapping.workers.worker_cpus`)."""
+    code = """
+import os
+from mfmap.mapping.workers import worker_cpus
+cpus = sorted(os.sched_getaffinity(0))
+os.sched_setaffinity(0, {cpus[0]})
+print(*worker_cpus(2), sep=",")
+"""
+    first, second = (int(c) for c in _python(code).split(","))
+    cpus = sorted(os.sched_getaffinity(0))
+    assert first != cpus[0]
+    assert second == (cpus[0] + 2) % (os.cpu_count() or 1)
