@@ -101,8 +101,19 @@ def judge(
 
 def read_baseline(path: Path) -> dict[str, dict[str, float]]:
     """log name -> metrics; an absent file is an empty baseline."""
+    return read_baseline_entries(path)[0]
+
+
+def baseline_machines(path: Path) -> dict[str, str]:
+    """log name -> the machine its baseline entry was made on, for the entries that say."""
+    return read_baseline_entries(path)[1]
+
+
+def read_baseline_entries(path: Path) -> tuple[dict[str, dict[str, float]], dict[str, str]]:
+    """One read of the baseline: log name -> metrics, and log name -> machine (entries made
+    before machines were recorded have none)."""
     if not path.exists():
-        return {}
+        return {}, {}
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
@@ -110,23 +121,16 @@ def read_baseline(path: Path) -> dict[str, dict[str, float]]:
     logs = data.get("logs") if isinstance(data, dict) else None
     if not isinstance(logs, dict):
         raise ManifestError("baseline lacks a 'logs' mapping", path)
-    out: dict[str, dict[str, float]] = {}
+    metrics_of: dict[str, dict[str, float]] = {}
+    machines: dict[str, str] = {}
     for name, entry in logs.items():
         metrics = entry.get("metrics") if isinstance(entry, dict) else None
         if not isinstance(metrics, dict):
             raise ManifestError(f"baseline entry '{name}' lacks 'metrics'", path)
-        out[name] = flatten_metrics(metrics)
-    return out
-
-
-def baseline_machines(path: Path) -> dict[str, str]:
-    """log name -> the machine its baseline entry was made on, for the entries that say."""
-    try:
-        logs = json.loads(path.read_text()).get("logs", {})
-    except (OSError, json.JSONDecodeError, AttributeError):
-        return {}
-    return {name: entry["machine"] for name, entry in logs.items()
-            if isinstance(entry, dict) and isinstance(entry.get("machine"), str)}
+        metrics_of[name] = flatten_metrics(metrics)
+        if isinstance(entry.get("machine"), str):
+            machines[name] = entry["machine"]
+    return metrics_of, machines
 
 
 def updated_machines(previous: Mapping[str, str], results: list[LogResult]) -> dict[str, str]:

@@ -29,7 +29,7 @@ def markdown_summary(run: RunResult) -> str:
         f"{len(run.results)} logs on {run.backend} in {run.wall_s:.1f} s"
         + ("; baseline updated" if run.baseline_updated else ""),
         "",
-        *([] if run.baseline_updated else _machine_note(run.results)),
+        *_machine_note(run),
         "| log | verdict | worst regression | regressed | improved | metrics | build+eval s |",
         "|---|---|---|---|---|---|---|",
     ]
@@ -54,10 +54,12 @@ def markdown_summary(run: RunResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _machine_note(results: list[LogResult]) -> list[str]:
-    """A paragraph when some baselines were made on another machine than this run's."""
+def _machine_note(run: RunResult) -> list[str]:
+    """A paragraph when some baselines were made on another machine than this run's (not when
+    the run rewrote them: they are this machine's now)."""
+    results = run.results
     other = [r for r in results if r.other_machine]
-    if not other:
+    if not other or run.baseline_updated:
         return []
     made = sorted({r.baseline_machine for r in other if r.baseline_machine})
     if any(not r.baseline_machine for r in other):

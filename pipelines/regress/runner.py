@@ -25,10 +25,9 @@ from typing import Any
 from mfmap.config import merge_dicts, read_yaml_mapping
 from mfmap.errors import MfmapError
 from pipelines.regress.compare import (
-    baseline_machines,
     flatten_metrics,
     judge,
-    read_baseline,
+    read_baseline_entries,
     updated_baseline,
     updated_machines,
     write_baseline,
@@ -433,8 +432,7 @@ def run_regression(
     start = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     jobs = make_jobs(manifest, out_dir)
-    baseline = read_baseline(manifest.baseline)
-    machines = baseline_machines(manifest.baseline)
+    baseline, machines = read_baseline_entries(manifest.baseline)
     if use_ray:
         init_ray(ray_address)
         import ray
