@@ -116,7 +116,7 @@ def read_baseline_entries(path: Path) -> tuple[dict[str, dict[str, float]], dict
         return {}, {}
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ManifestError(f"baseline is not readable JSON ({err.__class__.__name__})", path) from err
     logs = data.get("logs") if isinstance(data, dict) else None
     if not isinstance(logs, dict):

@@ -308,7 +308,9 @@ def load_manifest(path: Path, check: bool = True) -> Manifest:
         raise ManifestError("manifest not found", path)
     try:
         data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
+    except UnicodeDecodeError as err:
+        raise ManifestError("not a text file (not UTF-8)", path) from err
+    except (OSError, yaml.YAMLError) as err:
         raise ManifestError(f"not valid YAML ({err.__class__.__name__})", path) from err
     manifest = manifest_from_dict(data, path)
     if check:

@@ -264,4 +264,7 @@ def test_bad_baseline_file(tmp_path: Path) -> None:
     path.write_text(json.dumps({"logs": {"a": {"metric": {}}}}))
     with pytest.raises(ManifestError, match="baseline entry 'a' lacks 'metrics'"):
         read_baseline(path)
+    path.write_bytes(b"\xf0\x9f\xff\x00")
+    with pytest.raises(ManifestError, match=r"b\.json: baseline is not readable JSON"):
+        read_baseline(path)
     assert read_baseline(tmp_path / "absent.json") == {}

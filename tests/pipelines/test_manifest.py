@@ -113,6 +113,10 @@ def test_not_a_mapping_and_not_yaml(tmp_path: Path) -> None:
         load_manifest(broken)
     with pytest.raises(ManifestError, match="manifest not found"):
         load_manifest(tmp_path / "absent.yaml")
+    binary = tmp_path / "log.mcap"  # a log passed where the manifest goes
+    binary.write_bytes(b"\x89MCAP0\r\n\xf0\x9f\xff\x00")
+    with pytest.raises(ManifestError, match=r"log\.mcap: not a text file \(not UTF-8\)"):
+        load_manifest(binary)
 
 
 def test_tolerance_lookup_exact_then_longest_pattern_then_default() -> None:
