@@ -59,6 +59,8 @@ METRICS: dict[str, str] = {
     "trajectory.rot_mean_deg": "mean rotation error angle",
     "trajectory.rot_median_deg": "median rotation error angle",
     "trajectory.rot_max_deg": "largest rotation error angle",
+    "trajectory.tilt_rmse_deg": "RMSE of the tilt error: the angle between the estimated and the true up in the body frame (roll and pitch, not yaw)",
+    "trajectory.tilt_max_deg": "largest tilt error",
     "trajectory.z_rmse_m": "RMSE of the z error alone",
     "trajectory.z_max_m": "largest absolute z error",
     "trajectory.xy_rmse_m": "RMSE of the horizontal error",

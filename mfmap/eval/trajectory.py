@@ -87,6 +87,7 @@ class PoseErrors:
     stamps_s: F64
     dxyz: F64  # (N, 3) est - gt
     rot_deg: F64  # (N,)
+    tilt_deg: F64  # (N,) angle between the estimated and the true up, in the body frame
     align_rotation: F64  # 3x3 applied to the estimate (identity without alignment)
     align_translation: F64
 
@@ -115,7 +116,10 @@ def pose_errors(est: Trajectory, gt: Trajectory, max_diff_s: float, align: str =
     # arccos loses precision near 0; the axis-angle norm via arctan2 keeps it.
     skew = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], axis=1)
     angle = np.arctan2(np.linalg.norm(skew, axis=1) / 2.0, cos)
-    return PoseErrors(est.stamps_s[i_est], p_est - p_gt, np.degrees(angle), rot, trans)
+    # The world's up in each body frame (R^T z, the third row): roll and pitch, blind to yaw.
+    up_est, up_gt = r_est[:, 2, :], r_gt[:, 2, :]
+    tilt = np.arctan2(np.linalg.norm(np.cross(up_est, up_gt), axis=1), np.einsum("ij,ij->i", up_est, up_gt))
+    return PoseErrors(est.stamps_s[i_est], p_est - p_gt, np.degrees(angle), np.degrees(tilt), rot, trans)
 
 
 def _rmse(values: F64) -> float:
@@ -135,6 +139,8 @@ def ape_metrics(errors: PoseErrors) -> dict[str, float]:
         "rot_mean_deg": float(np.mean(errors.rot_deg)),
         "rot_median_deg": float(np.median(errors.rot_deg)),
         "rot_max_deg": float(np.max(errors.rot_deg)),
+        "tilt_rmse_deg": _rmse(errors.tilt_deg),
+        "tilt_max_deg": float(np.max(errors.tilt_deg)),
         "z_rmse_m": _rmse(errors.dxyz[:, 2]),
         "z_max_m": float(np.max(np.abs(errors.dxyz[:, 2]))),
         "xy_rmse_m": _rmse(np.linalg.norm(errors.dxyz[:, :2], axis=1)),

@@ -51,6 +51,25 @@ def test_known_offset_and_local_yaw_give_exactly_that_error(
     # A constant offset is all the 4-DoF alignment removes; the local yaw error stays.
     assert m["trajectory.4dof.ape_rmse_m"] == pytest.approx(0.0, abs=1e-8)
     assert m["trajectory.4dof.rot_rmse_deg"] == pytest.approx(2.5, abs=1e-6)
+    # A yaw error tilts nothing.
+    assert m["trajectory.tilt_rmse_deg"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_tilt_is_roll_and_pitch_alone(
+    make_build: Callable[..., Path], h: SimpleNamespace, tmp_path: Path
+) -> None:
+    """Each estimated pose pitched by 0.3 deg about its own y and turned 2 deg in yaw: the tilt
+    error is the 0.3 deg, whatever the heading; the rotation error holds both."""
+    from scipy.spatial.transform import Rotation
+
+    t, xyz, q = _gt(h)
+    local = Rotation.from_euler("zy", [2.0, 0.3], degrees=True).as_matrix()
+    q_est = Rotation.from_matrix(quat_to_matrix(q) @ local).as_quat()
+    out = make_build(trajectory=(t, xyz, q_est), floors=FLOORS)
+    m = evaluate(out, trajectory=h.write_tum(tmp_path / "gt.tum", t, xyz, q)).metrics
+    assert m["trajectory.tilt_rmse_deg"] == pytest.approx(0.3, abs=1e-6)
+    assert m["trajectory.tilt_max_deg"] == pytest.approx(0.3, abs=1e-6)
+    assert m["trajectory.rot_rmse_deg"] == pytest.approx(math.hypot(2.0, 0.3), abs=2e-3)
 
 
 def test_global_yaw_and_shift_removed_by_alignment(
