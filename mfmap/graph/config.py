@@ -76,7 +76,10 @@ class GraphConfig(BaseModel):
     imu_ride_gate_m: float = Field(
         0.25, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
     )
-    gravity_sigma_deg: float = Field(1.0, description="roll/pitch from gravity")
+    gravity_sigma_deg: float = Field(
+        0.5, description="roll/pitch from gravity (robust, Huber); each keyframe's up, measured "
+        "over +- 1 s with the gyro's rotation taken out, is about 0.17 deg off in simulation"
+    )
     gravity_minus_odometry: bool = Field(
         True,
         description="take the robot's own acceleration (from the wheel odometry's twist) out of "

@@ -168,6 +168,10 @@ def _consistent(edge: PoseEdge, initial: dict[int, F64], config: GraphConfig) ->
     return bool(np.linalg.norm(delta[:3, 3]) <= config.loop_gate_m and angle <= config.loop_gate_deg)
 
 
+# Roll and pitch of the ride and inter-floor factors: loose, the gravity factors set the tilt.
+_LOOSE_TILT_RAD = math.radians(5.0)
+
+
 def _robust(config: GraphConfig, model: Any, kernel_name: RobustKernel | None = None) -> Any:
     kernel: Any
     if (kernel_name or config.robust_kernel) == RobustKernel.CAUCHY:
@@ -339,6 +343,7 @@ def optimize_building(
     kfs = sorted(keyframes, key=lambda k: (k.stamp_ns, k.id))
     ids = [k.id for k in kfs]
     initial_poses = {k.id: np.asarray(k.pose, dtype=np.float64).copy() for k in kfs}
+    by_id = {k.id: k for k in kfs}
     builder = _Builder(config)
     values = gtsam.Values()
     for kf in kfs:
@@ -365,13 +370,27 @@ def optimize_building(
                 # still pull on it, so it is left out.
                 builder.reject(edge.kind)
                 continue
+            information = np.asarray(edge.information, dtype=np.float64)
+            walk = edge.kind == "odometry" and by_id[edge.i].visit != by_id[edge.j].visit
+            if walk:
+                # Across a stair walk the height change is its own world-z factor: z in the
+                # first pose's frame would turn that pose's tilt (0.2 deg against the
+                # odometry's own) into centimetres over the walk's horizontal run.
+                sigma_z = float(information[5, 5]) ** -0.5
+                information = information.copy()
+                information[5, :] = 0.0
+                information[:, 5] = 0.0
+                information[5, 5] = FREE_SIGMA**-2
             model, sqrt_info = _edge_model(
-                config, np.asarray(edge.information, dtype=np.float64),
+                config, information,
                 RobustKernel.CAUCHY if edge.kind != "odometry" else config.robust_kernel,
             )
             factor = gtsam.BetweenFactorPose3(X(edge.i), X(edge.j), gtsam.Pose3(edge.measured), model)
             builder.add(edge.kind, factor, sqrt_info)
             builder.links.append((edge.i, edge.j))
+            if walk:
+                dz_m = float((initial_poses[edge.i][:3, :3] @ np.asarray(edge.measured)[:3, 3])[2])
+                builder.world_dz("walk_z", X(edge.i), X(edge.j), dz_m, sigma_z, robust=True)
 
         _add_barometer(
             builder, values, kfs, initial_poses, pressure, segmentation, config, temperature_k, warnings
@@ -386,7 +405,9 @@ def optimize_building(
             for kf in kfs:
                 g = None if gravity_body is None else gravity_body.get(kf.id)
                 measured = up if g is None else gtsam.Unit3(np.asarray(g, dtype=np.float64))
-                model = gtsam.noiseModel.Isotropic.Sigma(2, sig)
+                # Huber: a keyframe taken while the robot accelerates in a way the odometry
+                # does not see measures up off by degrees, many sigmas at this width.
+                model = _robust(config, gtsam.noiseModel.Isotropic.Sigma(2, sig), RobustKernel.HUBER)
                 builder.add("gravity", gtsam.AttitudeFactorPose3(X(kf.id), up, model, measured),
                             np.eye(2) / sig)
         bar.advance()
@@ -525,7 +546,7 @@ def _add_elevator(
         return rides
     yaw = math.radians(config.elevator_sigma_yaw_deg)
     sig_xy = config.elevator_sigma_xy_m
-    tilt = math.radians(config.gravity_sigma_deg) * 5.0
+    tilt = _LOOSE_TILT_RAD
     trace = raw_trace(seg) if config.transition_window_s > 0 and len(seg.stamp_ns) > 0 else None
     for index, tr in enumerate(seg.transitions):
         ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
@@ -709,7 +730,7 @@ def _add_interfloor(
         clouds = {f: floor_points(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
     yaw = math.radians(config.interfloor_sigma_yaw_deg)
     sig_xy = config.interfloor_sigma_xy_m
-    tilt = math.radians(config.gravity_sigma_deg) * 5.0
+    tilt = _LOOSE_TILT_RAD
     matches = []
     for lower, upper in itertools.pairwise(floor_ids):
         match = register_floors(

@@ -85,6 +85,25 @@ def test_gravity_at_keyframes_takes_out_the_robots_own_acceleration() -> None:
     assert gravity_at_keyframes(imu, kfs, ext, odom=short) == {}
 
 
+def test_gravity_at_keyframes_is_the_keyframes_own_tilt_while_the_robot_rocks() -> None:
+    """Pitching 0.5 degrees back and forth once a second: the plain mean over +- 1 s is level, the
+    samples turned into the keyframe's frame with the gyro give its tilt at that instant."""
+    n = 301
+    stamps = np.arange(n, dtype=np.int64) * 10_000_000  # 100 Hz, 3 s
+    t = stamps / 1e9 - 1.5  # the keyframe at 1.5 s, at the largest pitch
+    amplitude = np.radians(0.5)
+    pitch = amplitude * np.cos(2.0 * np.pi * t)
+    rate = np.column_stack([np.zeros(n), -amplitude * 2.0 * np.pi * np.sin(2.0 * np.pi * t), np.zeros(n)])
+    force = 9.81 * np.column_stack([-np.sin(pitch), np.zeros(n), np.cos(pitch)])  # R_y(pitch)^T up
+    imu = ImuSeries(stamps, rate, force, np.full((n, 4), np.nan), "imu")
+    kfs = [Keyframe(0, 1_500_000_000, 0, 0, np.eye(4), np.zeros((0, 3), np.float32), 1.0, 0.0)]
+    up = gravity_at_keyframes(imu, kfs, Extrinsics("base_link", {}), window_s=1.0)[0]
+    truth = np.array([-np.sin(amplitude), 0.0, np.cos(amplitude)])
+    assert np.degrees(np.arccos(min(float(up @ truth), 1.0))) < 0.01
+    plain = force[50:251].mean(axis=0)  # what the window's samples average to, unturned
+    assert np.degrees(np.arccos(plain[2] / np.linalg.norm(plain))) < 0.05  # level: 0.5 deg off
+
+
 def test_single_floor_spans_the_log() -> None:
     seg = single_floor(5, 1_000)
     assert len(seg.floors) == 1 and seg.transitions == ()

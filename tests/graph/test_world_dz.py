@@ -46,3 +46,41 @@ def test_height_change_is_world_z_whatever_the_tilt(pitch_deg: float) -> None:
 def test_a_between_factor_turns_tilt_into_height() -> None:
     # What the factor replaces: z in a's frame picks up 7 m x sin(0.3 deg) = 3.7 cm.
     assert abs(_solve(0.3, world_dz=False) - 3.5) == pytest.approx(7.0 * math.sin(math.radians(0.3)), abs=2e-3)
+
+
+def _walk(pitch_deg: float) -> tuple[float, dict[str, int]]:
+    """A stair walk between keyframes 1 and 2 (different visits), 7 m ahead and 3.5 m up. The
+    lidar odometry had keyframe 1 pitched by pitch_deg; gravity measures every keyframe level,
+    and the odometry's turns are loose (5 deg), so the graph levels it. Keyframe 0, a metre
+    before it, holds the prior. Returns the optimised height change across the walk and the
+    factor counts."""
+    from mfmap.graph.optimize import optimize_building
+    from mfmap.mapping.geometry import inverse
+    from mfmap.types import Keyframe, PoseEdge
+
+    first = np.eye(4)
+    first[0, 3] = -1.0
+    start = np.eye(4)
+    start[:3, :3] = gtsam.Rot3.Ry(math.radians(pitch_deg)).matrix()
+    end = np.eye(4)
+    end[:3, 3] = [7.0, 0.0, 3.5]
+    empty = np.zeros((0, 3), np.float32)
+    kfs = [Keyframe(0, 0, 0, 0, first, empty, 1.0, 0.0), Keyframe(1, 1_000_000_000, 0, 0, start, empty, 1.0, 0.0),
+           Keyframe(2, 20_000_000_000, 1, 1, end, empty, 1.0, 0.0)]
+    loose_turn = math.radians(5.0) ** -2
+    information = np.diag([loose_turn] * 3 + [2500.0, 2500.0, 400.0])  # 5 cm in z, as on a walk
+    edges = [PoseEdge(0, 1, inverse(first) @ start, information, "odometry"),
+             PoseEdge(1, 2, inverse(start) @ end, information, "odometry")]
+    up = np.array([0.0, 0.0, 1.0])
+    result = optimize_building(kfs, edges, None, None, GraphConfig(), gravity_body={k.id: up for k in kfs})
+    assert math.degrees(math.acos(min(result.poses[1][2, 2], 1.0))) < 0.05  # levelled
+    return float(result.poses[2][2, 3] - result.poses[1][2, 3]), {k: s.count for k, s in result.stats.items()}
+
+
+@pytest.mark.parametrize("pitch_deg", [0.0, 0.4])
+def test_a_stair_walk_climbs_its_world_height_whatever_the_first_keyframes_tilt(pitch_deg: float) -> None:
+    """The odometry's own pitch at the walk's start must not come back as height once gravity
+    levels that keyframe: z in its frame would be 7 m x sin(0.4 deg) = 4.9 cm off."""
+    dz, counts = _walk(pitch_deg)
+    assert dz == pytest.approx(3.5, abs=2e-3)
+    assert counts["walk_z"] == 1

@@ -9,7 +9,7 @@ import pytest
 
 from mfmap.mapping.cabin import through_box
 from mfmap.mapping.config import MappingConfig
-from mfmap.mapping.geometry import deskew, yaw_pose
+from mfmap.mapping.geometry import deskew, rotations_to, yaw_pose
 from mfmap.mapping.loops import LoopCloser, descriptor_distance, place_descriptor
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.posegraph import optimize_poses
@@ -279,3 +279,35 @@ def test_the_gyros_angle_random_walk_is_measured_at_the_stand_stills() -> None:
     assert np.degrees(arw) == pytest.approx(np.degrees(0.003 * np.sqrt(0.005)), rel=0.05)
     # No stand-still in the log: a consumer MEMS gyro's figure.
     assert heading_noise(stamps, rate, still_mask(stamps, None)) == DEFAULT_HEADING_NOISE_RAD_SQRT_S
+
+
+def test_rotations_to_a_reference_instant_from_the_gyro() -> None:
+    """A turn at a constant rate about a tilted axis, sampled unevenly: each sample's frame in
+    the frame at a reference instant between two samples is exp(w (t_i - t_ref))."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    stamps = np.cumsum(rng.integers(4_000_000, 6_000_000, size=301)).astype(np.int64)
+    rate = np.array([0.05, -0.02, 0.6])
+    ref_ns = int(stamps[137]) + 1_700_000
+    got = rotations_to(stamps, np.tile(rate, (len(stamps), 1)), ref_ns)
+    want = Rotation.from_rotvec(((stamps - ref_ns) / 1e9)[:, None] * rate).as_matrix()
+    assert got.shape == (301, 3, 3)
+    assert np.abs(got - want).max() < 1e-12
+    back_s = (ref_ns - int(stamps[0])) / 1e9
+    assert np.arccos((np.trace(got[0]) - 1) / 2) == pytest.approx(np.linalg.norm(rate) * back_s, abs=1e-9)
+
+
+def test_rotations_to_chains_the_steps_in_order() -> None:
+    """Changing rates (steps that do not commute): the prefix product equals the steps chained
+    one by one, each taken at the mean of its two samples' rates."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    stamps = np.arange(0, 200 * 5_000_000, 5_000_000, dtype=np.int64)
+    rate = rng.normal(0.0, 2.0, size=(200, 3))
+    got = rotations_to(stamps, rate, int(stamps[0]))
+    current = np.eye(3)
+    for i in range(1, 200):
+        current = current @ Rotation.from_rotvec(0.5 * (rate[i] + rate[i - 1]) * 0.005).as_matrix()
+        assert np.abs(got[i] - current).max() < 1e-12
