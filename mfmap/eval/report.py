@@ -59,19 +59,21 @@ def points_table(result: EvalResult) -> Table:
 def trajectory_table(result: EvalResult) -> Table:
     m = result.metrics
     table = Table(title="Trajectory: absolute pose error")
-    for name in ("alignment", "pairs", "APE RMSE (m)", "mean", "median", "max", "rot RMSE (°)", "rot max (°)", "z RMSE (m)"):
+    for name in ("alignment", "pairs", "APE RMSE (m)", "mean", "median", "max", "rot RMSE (°)", "rot max (°)", "tilt RMSE (°)",
+                 "z RMSE (m)"):
         table.add_column(name, justify="left" if name == "alignment" else "right")
     for prefix, label in (("trajectory", "none"), ("trajectory.se3", "SE(3)"), ("trajectory.4dof", "4-DoF")):
         if f"{prefix}.ape_rmse_m" not in m:
             continue
-        keys = ("ape_rmse_m", "ape_mean_m", "ape_median_m", "ape_max_m", "rot_rmse_deg", "rot_max_deg", "z_rmse_m")
+        keys = ("ape_rmse_m", "ape_mean_m", "ape_median_m", "ape_max_m", "rot_rmse_deg", "rot_max_deg", "tilt_rmse_deg",
+                "z_rmse_m")
         table.add_row(label, f"{m[prefix + '.pairs']:.0f}", *(_num(m[f"{prefix}.{k}"], 4) for k in keys))
     floors = sorted(int(k.split(".")[1][5:]) for k in m if k.startswith("trajectory.floor") and k.endswith(".pairs"))
     for fid in floors:
         p = f"trajectory.floor{fid}"
         table.add_row(
             f"none, floor {fid}", f"{m[p + '.pairs']:.0f}", _num(m[p + ".ape_rmse_m"], 4),
-            "", "", "", "", "", _num(m[p + ".z_rmse_m"], 4),
+            "", "", "", "", "", "", _num(m[p + ".z_rmse_m"], 4),
         )  # fmt: skip
     return table
 

@@ -116,6 +116,7 @@ def test_cli_exit_codes_and_eval_json(full_case: dict[str, Path], tmp_path: Path
     ok = _mfmap(str(c["out"]), *common, "--fail-above", "points.rmse_m=0.03")
     assert ok.returncode == 0, ok.stderr
     assert "Table I layout" in ok.stdout and "Z-axis error between floors" in ok.stdout
+    assert "tilt" in ok.stdout  # the trajectory table's roll and pitch column
     data = json.loads((c["out"] / "eval.json").read_text())
     assert data["metrics"]["points.rmse_m"] == pytest.approx(0.02, abs=1e-9)
     assert data["metrics"]["trajectory.ape_rmse_m"] == pytest.approx(0.02, abs=1e-9)
