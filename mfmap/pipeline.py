@@ -339,6 +339,8 @@ def gravity_at_keyframes(
             continue
         t_ns = stamp_ns[lo:hi]
         span_s = (int(t_ns[-1]) - int(t_ns[0])) / 1e9
+        if span_s <= 0.0:
+            continue  # samples all stamped alike: no time to average over
         to_kf = rotations_to(t_ns, rate[lo:hi], kf.stamp_ns)  # samples' frames in the keyframe's
         force = np.einsum("nij,nj->ni", to_kf, accel[lo:hi])
         step_s = np.diff(t_ns).astype(np.float64)[:, None] / 1e9

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import warnings
 
 import numpy as np
 
@@ -57,6 +58,12 @@ def test_gravity_at_keyframes_in_the_base_frame() -> None:
     # Accelerating: the mean is not gravity, no factor.
     moving = ImuSeries(stamps, np.zeros((n, 3)), np.tile([5.0, 0.0, 9.8], (n, 1)), np.full((n, 4), np.nan), "imu")
     assert gravity_at_keyframes(moving, kfs, ext) == {}
+    # A broken IMU driver stamping every sample alike: no factor (and no division by zero).
+    same = ImuSeries(np.full(n, 1_000_000_000, np.int64), np.zeros((n, 3)), np.tile(tilt, (n, 1)),
+                     np.full((n, 4), np.nan), "imu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert gravity_at_keyframes(same, kfs, ext) == {}
 
 
 def test_gravity_at_keyframes_takes_out_the_robots_own_acceleration() -> None:
