@@ -330,6 +330,7 @@ def gravity_at_keyframes(
     accel = imu.accel_m_s2[order] @ imu_to_base[:3, :3].T
     rate = imu.gyro_rad_s[order] @ imu_to_base[:3, :3].T
     rate = rate - gyro_bias(stamp_ns, rate, still_mask(stamp_ns, odom))
+    velocity = None if odom is None else _imu_velocity(odom, stamp_ns, rate, lever)
     half = int(window_s * 1e9)
     out: dict[int, F64] = {}
     for kf in keyframes:
@@ -345,11 +346,11 @@ def gravity_at_keyframes(
         force = np.einsum("nij,nj->ni", to_kf, accel[lo:hi])
         step_s = np.diff(t_ns).astype(np.float64)[:, None] / 1e9
         mean = ((force[1:] + force[:-1]) * step_s).sum(axis=0) / (2.0 * span_s)  # trapezoid
-        if odom is not None:
-            ends = _imu_velocity(odom, t_ns[[0, -1]], rate[[lo, hi - 1]], lever)
-            if ends is None:
+        if velocity is not None:
+            first, last = velocity[lo], velocity[hi - 1]
+            if np.isnan(first[0]) or np.isnan(last[0]):
                 continue  # no odometry around it: the mean may hold the robot's acceleration
-            mean = mean - (to_kf[-1] @ ends[1] - to_kf[0] @ ends[0]) / span_s
+            mean = mean - (to_kf[-1] @ last - to_kf[0] @ first) / span_s
         norm = float(np.linalg.norm(mean))
         # Only when the robot is close to unaccelerated is the mean a direction of gravity.
         if abs(norm - 9.81) < 0.5:
@@ -357,17 +358,18 @@ def gravity_at_keyframes(
     return out
 
 
-def _imu_velocity(odom: OdomSeries, stamp_ns: I64, rate_rad_s: F64, lever: F64) -> F64 | None:
-    """Velocity (base frame) at each stamp of a point at `lever` on the base: the odometry's
-    body-frame linear velocity plus w x r; None where the odometry does not reach a stamp."""
-    tolerance = 100_000_000
-    if len(odom) < 2 or stamp_ns.min() < odom.stamp_ns[0] - tolerance \
-            or stamp_ns.max() > odom.stamp_ns[-1] + tolerance:
-        return None
+def _imu_velocity(odom: OdomSeries, stamp_ns: I64, rate_rad_s: F64, lever: F64) -> F64:
+    """Velocity (base frame) at each IMU stamp of the IMU, at `lever` on the base: the
+    odometry's body-frame linear velocity plus w x r; NaN where the odometry does not reach."""
     at = stamp_ns.astype(np.float64)
+    if len(odom) < 2:
+        return np.full((len(at), 3), np.nan)
     t = odom.stamp_ns.astype(np.float64)
     v = np.column_stack([np.interp(at, t, odom.linear_m_s[:, a]) for a in range(3)])
-    return np.asarray(v + np.cross(rate_rad_s, lever))
+    v += np.cross(rate_rad_s, lever)
+    tolerance_ns = 100_000_000
+    v[(at < t[0] - tolerance_ns) | (at > t[-1] + tolerance_ns)] = np.nan
+    return v
 
 
 def optimise(

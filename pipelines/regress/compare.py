@@ -104,11 +104,6 @@ def read_baseline(path: Path) -> dict[str, dict[str, float]]:
     return read_baseline_entries(path)[0]
 
 
-def baseline_machines(path: Path) -> dict[str, str]:
-    """log name -> the machine its baseline entry was made on, for the entries that say."""
-    return read_baseline_entries(path)[1]
-
-
 def read_baseline_entries(path: Path) -> tuple[dict[str, dict[str, float]], dict[str, str]]:
     """One read of the baseline: log name -> metrics, and log name -> machine (entries made
     before machines were recorded have none)."""

@@ -9,6 +9,7 @@ is retried once; a log that fails is reported with its error and does not stop t
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import multiprocessing
@@ -449,8 +450,7 @@ def run_regression(
         result = judge(outcome, baseline.get(outcome.name), manifest, machines.get(outcome.name))
         if update_baseline and result.verdict is not Verdict.ERROR:
             # The checks against the old baseline stay in the reports: what this update changes.
-            result = LogResult(result.outcome, result.checks, Verdict.UPDATED,
-                               result.baseline_machine)
+            result = dataclasses.replace(result, verdict=Verdict.UPDATED)
         results.append(result)
         if on_result is not None:
             on_result(result)

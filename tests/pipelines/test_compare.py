@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 
 from pipelines.regress.compare import (
-    baseline_machines,
     compare_metrics,
     flatten_metrics,
     judge,
     read_baseline,
+    read_baseline_entries,
     updated_baseline,
     updated_machines,
     write_baseline,
@@ -222,16 +222,16 @@ def test_baseline_records_each_logs_machine(
     path = tmp_path / "unit.json"
     write_baseline(path, {"good": eval_metrics, "broken": eval_metrics}, "unit",
                    {"good": THERE, "broken": THERE})
-    assert baseline_machines(path) == {"good": THERE, "broken": THERE}
+    assert read_baseline_entries(path)[1] == {"good": THERE, "broken": THERE}
     results = [judge(_outcome("good", eval_metrics, machine=HERE), eval_metrics, manifest, THERE),
                judge(_outcome("broken", {}, "boom", machine=HERE), eval_metrics, manifest, THERE)]
-    machines = updated_machines(baseline_machines(path), results)
+    machines = updated_machines(read_baseline_entries(path)[1], results)
     assert machines == {"good": HERE, "broken": THERE}  # a failed build keeps its old entry
     write_baseline(path, updated_baseline(read_baseline(path), results), "unit", machines)
-    assert baseline_machines(path) == {"good": HERE, "broken": THERE}
+    assert read_baseline_entries(path)[1] == {"good": HERE, "broken": THERE}
     assert json.loads(path.read_text())["logs"]["good"]["machine"] == HERE
     write_baseline(path, {"old": eval_metrics}, "unit")  # made before machines were recorded
-    assert baseline_machines(path) == {} and read_baseline(path)["old"] == eval_metrics
+    assert read_baseline_entries(path)[1] == {} and read_baseline(path)["old"] == eval_metrics
 
 
 def test_summary_says_when_the_baseline_is_another_machines(
