@@ -4,7 +4,8 @@ Per scan: sensor -> base frame, range filter, deskew, cabin filter, scan-to-loca
 motion prior, keyframe decision, loop search on the same floor. Elevator rides hold x, y, yaw
 (scans not registered); stairs keep the odometry running with z free, and the floor reached
 starts a new, levelled local map. With `workers` > 1 the runs of visits between elevator rides
-are mapped in parallel processes and chained afterwards (see "parallel mapping" below).
+(and with `split_at_stairs` stair walks) are mapped in parallel processes and chained afterwards
+(see "parallel mapping" below).
 """
 
 from __future__ import annotations
@@ -280,7 +281,7 @@ def map_floors(
         raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)")
     total = source.count(Role.SCAN2D if planar else Role.LIDAR)
     started = time.perf_counter()
-    chunks = _chunks(Timeline(seg))
+    chunks = _chunks(Timeline(seg), cfg.split_at_stairs)
     path = getattr(source, "path", None)
     ingest = getattr(source, "config", None)
     with progress.stage("mapping", total=total) as bar:
@@ -395,7 +396,10 @@ class _Mapper:
             # a scan posed by it would start the next registration a step too low (with every
             # third scan the climb came out 7 % short; with every scan within 1-3 cm).
             stride = 1
-        held = state.scan_index % stride == 0 and self._standing_still(stamp_ns)
+        # Never the first scan of a fresh map (a visit's): it starts the map, and the chunk
+        # mapped from a stair walk's end must start it as one pass does (`_chunks`).
+        held = (state.scan_index % stride == 0 and state.map_pose is not None
+                and self._standing_still(stamp_ns))
         self.held_scans += held
         if state.stamp_ns is not None and (state.scan_index % stride != 0 or held):
             delta = self._predict(stamp_ns)
@@ -813,6 +817,20 @@ def _stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
 # over all keyframes in their order, exactly as the sequential pass would. Each chunk starts with
 # a fresh adaptive threshold and scan stride phase, so the result differs slightly from one
 # process, but not between runs: chunks are merged in a fixed order.
+#
+# Off a stair walk the local map is cleared too, and the visit starts from the pose reached on
+# the stairs, levelled by gravity (`_start_visit`): a yaw and x, y of the start computed from
+# any other pose, as after a ride. So with `split_at_stairs` a chunk also starts at each stair
+# walk's end (off by default: see the README's Limitations on what it moves): it primes its
+# motion state on the walk's last scans (`STAIRS_PRIME_NS`), so the visit's first scan is
+# predicted, deskewed and levelled as in one pass, and the chunk before it maps on to that same
+# scan, its first keyframe of the new visit carrying the walk's edge. The merge places the new
+# chunk so its first keyframe lands on that one's pose, keeps the later chunk's keyframe and hands
+# it the walk's edge. What differs from one pass is what after a ride differs (the threshold, the
+# stride phase) and the wheels' scale, calibrated afresh.
+
+# The stairs chunk's motion is primed on the walk's scans of this last stretch.
+STAIRS_PRIME_NS = 500_000_000
 
 
 @dataclass(frozen=True)
@@ -820,26 +838,43 @@ class _Chunk:
     first_visit: int
     start_ns: int | None  # None: from the log's start
     end_ns: int | None  # inclusive; None: to the log's end
+    after_stairs: bool = False  # starts at a stair walk's end (primed on the walk's last scans)
+    # Maps on to the first scan of this visit (the next chunk's, after a stair walk), then stops.
+    stop_in_visit: int | None = None
 
 
-def _chunks(timeline: Timeline) -> list[_Chunk]:
-    """Runs of visits whose odometry restarts after an elevator ride (see `_start_visit`)."""
-    starts = [0]
+def _chunks(timeline: Timeline, stairs: bool = False) -> list[_Chunk]:
+    """Runs of visits whose odometry restarts after an elevator ride (see `_start_visit`) and,
+    with `stairs`, after a stair walk."""
+    starts: list[tuple[int, Transition | None]] = [(0, None)]
     for v in range(1, len(timeline.visits)):
         previous_start, start = timeline.visits[v - 1][1], timeline.visits[v][1]
-        if any(tr.kind == TransitionKind.ELEVATOR and previous_start <= tr.start_ns < start
-               for tr in timeline.transitions):
-            starts.append(v)
+        between = [tr for tr in timeline.transitions if previous_start <= tr.start_ns < start]
+        if any(tr.kind == TransitionKind.ELEVATOR for tr in between):
+            starts.append((v, None))
+        elif stairs and between and between[-1].kind == TransitionKind.STAIRS:
+            starts.append((v, between[-1]))
     # A ride ends where the next visit starts, and a scan stamped exactly there is still the
     # ride's (`Timeline.at`): it stays in the chunk the ride hangs off. Started with the next
     # chunk, it was posed from that chunk's held pose as if the whole ride lay ahead of it, 7.4 m
     # below the floor on three-floor-revisit seed 1's 8 m ride down, and the trajectory's export
     # then scaled the ride's height profile to that scan (the ride came out half as deep).
     out = []
-    for k, v in enumerate(starts):
-        start_ns = None if k == 0 else timeline.visits[v][1] + 1
-        end_ns = None if k + 1 == len(starts) else timeline.visits[starts[k + 1]][1]
-        out.append(_Chunk(v, start_ns, end_ns))
+    for k, (v, walk) in enumerate(starts):
+        start_ns: int | None = None
+        if k > 0:
+            start_ns = timeline.visits[v][1] + 1
+            if walk is not None:
+                start_ns = max(walk.end_ns - STAIRS_PRIME_NS, walk.start_ns)
+        end_ns: int | None = None
+        stop: int | None = None
+        if k + 1 < len(starts):
+            following, following_walk = starts[k + 1]
+            end_ns = timeline.visits[following][1]
+            if following_walk is not None:
+                # On to the next visit's first scan (read up to a few seconds into it).
+                stop, end_ns = following, end_ns + 5_000_000_000
+        out.append(_Chunk(v, start_ns, end_ns, walk is not None, stop))
     return out
 
 
@@ -867,6 +902,11 @@ class _ChunkResult:
     scans: int
     counters: dict[str, float]
     warnings: list[str]
+    held_ns: int | None = None  # the reference time of `held`
+    # After a stair walk: the visit's first scan's stamp, and its pose and reference time.
+    first_scan_ns: int | None = None
+    anchor: F64 | None = None
+    anchor_ns: int | None = None
 
 
 def _map_chunk(job: _ChunkJob) -> _ChunkResult:
@@ -877,17 +917,25 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
     mapper = _Mapper(job.cfg, job.seg, job.extrinsics, motion, job.planar)
     chunk = job.chunk
     if chunk.first_visit > 0:
-        mapper.state.visit = chunk.first_visit - 1  # so its first scan restarts after the ride
+        mapper.state.visit = chunk.first_visit - 1  # so its first scan restarts after the ride (walk)
     scans = 0
+    first_scan_ns: int | None = None
+    anchor: F64 | None = None
+    anchor_ns: int | None = None
     with open_log(job.path, job.ingest) as src:
         for stamp_ns, frame_id, xyz, t_offset_ns in _scans(src, job.planar, chunk.start_ns,
                                                            chunk.end_ns):
             mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
-            scans += 1
+            visit = mapper.state.visit
+            if chunk.after_stairs and first_scan_ns is None and visit >= chunk.first_visit:
+                first_scan_ns, anchor, anchor_ns = stamp_ns, mapper.state.pose.copy(), mapper.state.stamp_ns
+            if chunk.stop_in_visit is not None and visit >= chunk.stop_in_visit:
+                break  # the next chunk's first scan: counted there
+            scans += visit >= chunk.first_visit or not chunk.after_stairs  # not the priming scans
     mapper.finish_run()
     return _ChunkResult(mapper.keyframes, mapper.edges, mapper.scan_poses, mapper._pending,
                         chunk.first_visit, mapper.state.pose, scans, mapper.counters(),
-                        mapper.warnings)
+                        mapper.warnings, mapper.state.stamp_ns, first_scan_ns, anchor, anchor_ns)
 
 
 def _map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingConfig,
@@ -922,11 +970,21 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
     counters: dict[str, float] = {}
     warnings: list[str] = []
     held = np.eye(4)
+    held_ns: int | None = None
+    walk: list[tuple[PoseEdge, F64]] = []  # edges onto the next chunk's first keyframe, end pose
     for index, part in enumerate(parts):
+        part, end, walk_edges = _meet_at_stairs(part, parts[index + 1] if index + 1 < len(parts)
+                                                else None)
         if part.scans == 0:
+            walk = []
             continue  # nothing mapped: the held pose carries on to the next chunk
         frame = np.eye(4)
-        if part.first_visit > 0:
+        if part.anchor is not None:
+            # Off a stair walk: the chunk's first scan of its visit is the chunk before's last.
+            if held_ns != part.anchor_ns:
+                warnings.append("a stair walk's two chunks did not end and start at one scan")
+            frame = held @ inverse(part.anchor)
+        elif part.first_visit > 0:
             # `_start_visit` levels the held pose by gravity keeping its yaw, and sets z to the
             # floor's elevation: from the held pose that is the chunk's start (made from an
             # identity held pose) turned by the held yaw and moved by its x, y.
@@ -937,6 +995,15 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
         for kf in part.keyframes:
             keyframes.append(replace(kf, id=kf.id + offset, pose=frame @ kf.pose))
             chunk_of_visit[kf.visit] = index
+        if part.anchor is not None and part.keyframes:
+            # The walk's edge, made by the chunk before onto its own first keyframe of this
+            # visit, which lands on this chunk's first (the same scan, the same pose).
+            first = keyframes[offset]
+            for e, end_pose in walk:
+                chunk_edges.setdefault(first.id, []).append(
+                    replace(e, j=first.id, measured=e.measured @ inverse(end_pose) @ first.pose))
+        walk = [] if end is None else [(replace(e, i=e.i + offset), frame @ end.pose)
+                                       for e in walk_edges]
         for e in part.edges:
             chunk_edges.setdefault(e.j + offset, []).append(replace(e, i=e.i + offset, j=e.j + offset))
         scan_poses.extend(replace(sp, keyframe=sp.keyframe + offset) for sp in part.scan_poses)
@@ -946,7 +1013,7 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
             last = keyframes[-1]
             scan_poses.extend(ScanPose(ns, last.id, inverse(last.pose) @ frame @ pose)
                               for ns, pose in part.pending)
-        held = frame @ part.held
+        held, held_ns = frame @ part.held, part.held_ns
         for name, value in part.counters.items():
             merge = max if name == "max_local_map_points" else (lambda a, b: a + b)
             counters[name] = merge(counters.get(name, 0.0), value)
@@ -968,3 +1035,39 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
     if failures:
         warnings.append(f"{int(failures)} scans could not be registered (motion prior used)")
     return MappingResult(keyframes, edges, scan_poses, warnings, stats)
+
+
+def _meet_at_stairs(part: _ChunkResult, following: _ChunkResult | None
+                    ) -> tuple[_ChunkResult, Keyframe | None, list[PoseEdge]]:
+    """Where chunks meet at a stair walk's end, each scan is kept once.
+
+    A chunk that starts there drops its priming scans (the walk's, posed by the chunk before).
+    A chunk that ends there drops the next visit's first scan and its keyframe, returned with
+    the odometry edges onto it (the walk's edge) for the merge to hand to the next chunk's
+    first keyframe; its loop edges go (the merge searches them again across chunks).
+    """
+    if part.first_scan_ns is not None:
+        part = replace(part, scan_poses=[sp for sp in part.scan_poses
+                                         if sp.stamp_ns >= part.first_scan_ns],
+                       pending=[(ns, pose) for ns, pose in part.pending
+                                if ns >= part.first_scan_ns])
+    if following is None or following.first_scan_ns is None:
+        return part, None, []
+    cut = following.first_scan_ns
+    end = part.keyframes[-1] if part.keyframes else None
+    if end is None or end.visit < following.first_visit:
+        end = None
+    keyframes = part.keyframes if end is None else part.keyframes[:-1]
+    kept, pending = [], [(ns, pose) for ns, pose in part.pending if ns < cut]
+    for sp in part.scan_poses:
+        if sp.stamp_ns >= cut:
+            continue
+        if end is not None and sp.keyframe == end.id:
+            pending.append((sp.stamp_ns, end.pose @ sp.relative))  # hung on the last one kept
+        else:
+            kept.append(sp)
+    onto = [] if end is None else [e for e in part.edges if e.j == end.id and e.kind == "odometry"]
+    edges = part.edges if end is None else [e for e in part.edges
+                                            if end.id not in (e.i, e.j)]
+    return (replace(part, keyframes=keyframes, edges=edges, scan_poses=kept, pending=pending),
+            end, onto)

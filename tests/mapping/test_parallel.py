@@ -1,4 +1,5 @@
-"""Mapping the runs of visits between elevator rides in parallel processes (`workers`)."""
+"""Mapping the runs of visits between elevator rides and stair walks in parallel processes
+(`workers`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_rad
 from mfmap.mapping.metrics import read_tum, visit_errors
 from mfmap.mapping.posegraph import optimize_all_visits, scan_trajectory
-from mfmap.mapping.stage import Timeline, _chunks
+from mfmap.mapping.stage import STAIRS_PRIME_NS, Timeline, _chunks
 from mfmap.types import FloorSegmentation, MappingResult, Role
 
 SegFn = Callable[[Path], FloorSegmentation]
@@ -25,13 +26,28 @@ def _run(folder: Path, seg: FloorSegmentation, workers: int) -> MappingResult:
         return map_floors(src, seg, MappingConfig(workers=workers), src.extrinsics())
 
 
-def test_chunks_split_at_elevator_rides_only(sim_run: Callable[..., Path], gt_floors: SegFn) -> None:
+def test_chunks_split_at_elevator_rides_and_stair_walks(sim_run: Callable[..., Path],
+                                                        gt_floors: SegFn) -> None:
     seg = gt_floors(sim_run("tiny"))  # floor 0, elevator, floor 1
     chunks = _chunks(Timeline(seg))
     visits = seg.visits()
     assert [c.first_visit for c in chunks] == [0, 1]
     assert chunks[0].start_ns is None and chunks[1].end_ns is None
     assert chunks[0].end_ns == visits[1][1] and chunks[1].start_ns == visits[1][1] + 1
+    assert not any(c.after_stairs or c.stop_in_visit is not None for c in chunks)
+    # Stairs: floor 0, walk, floor 1, walk, floor 2. With `split_at_stairs` a chunk starts on
+    # each walk's last half second (its motion primed there) and the one before maps on into the
+    # next visit.
+    seg = gt_floors(sim_run("stairs"))
+    walks = seg.transitions
+    visits = seg.visits()
+    assert [c.first_visit for c in _chunks(Timeline(seg))] == [0]  # split_at_stairs is off
+    chunks = _chunks(Timeline(seg), stairs=True)
+    assert [(c.first_visit, c.after_stairs, c.stop_in_visit) for c in chunks] == [
+        (0, False, 1), (1, True, 2), (2, True, None)]
+    for k in (1, 2):
+        assert chunks[k].start_ns == walks[k - 1].end_ns - STAIRS_PRIME_NS
+        assert chunks[k - 1].end_ns == visits[k][1] + 5_000_000_000
 
 
 def test_a_scan_at_the_rides_end_stays_on_the_ride(sim_run: Callable[..., Path],
