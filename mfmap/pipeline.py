@@ -163,7 +163,7 @@ def build(
 
             t0 = time.perf_counter()
             graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, progress,
-                             odom=src.odometry())
+                             odom=src.odometry(), pool=pool)
             warnings += graph.warnings
             timings["graph"] = time.perf_counter() - t0
 
@@ -381,6 +381,7 @@ def optimise(
     cfg: MfmapConfig,
     progress: Progress,
     odom: OdomSeries | None = None,
+    pool: Executor | None = None,
 ) -> GraphResult:
     from mfmap.graph.optimize import optimize_building
 
@@ -396,6 +397,7 @@ def optimise(
         gravity_body=gravity,
         progress=progress,
         imu=imu,
+        executor=pool,
     )
 
 

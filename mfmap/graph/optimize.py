@@ -18,11 +18,13 @@ order) drifting as a random walk. Factors, by kind:
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
 import time
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -327,12 +329,15 @@ def optimize_building(
     gravity_body: dict[int, F64] | None = None,
     progress: Progress | None = None,
     imu: ImuSeries | None = None,
+    executor: Executor | None = None,
 ) -> GraphResult:
     """Build the building's factor graph from the mapping stage's keyframes and edges; optimise.
 
     `gravity_body` maps a keyframe id to the measured up direction (specific force) in the base
     frame; keyframes without one are assumed level. `imu` gives each elevator ride's height change
     (config `imu_ride_height`); without it z across a ride comes from the barometer alone.
+    With `executor` (processes of `mapping.workers.worker_pool`) the pairs of adjacent floors are
+    registered in parallel, with the same results.
     Returns optimised poses; keyframes are not modified.
     """
     started = time.perf_counter()
@@ -429,7 +434,8 @@ def optimize_building(
         floor_ids = sorted({k.floor_id for k in kfs if k.floor_id >= 0})
         if config.inter_floor_registration and len(floor_ids) > 1:
             phase1 = {i: np.asarray(result.atPose3(X(i)).matrix()) for i in ids}
-            matches = _add_interfloor(builder, kfs, phase1, floor_ids, segmentation, config)
+            matches = _add_interfloor(builder, kfs, phase1, floor_ids, segmentation, config,
+                                      executor)
             for m in matches:
                 if not m.accepted:
                     warnings.append(f"graph: floors {m.lower}/{m.upper} not registered ({m.reason})")
@@ -720,6 +726,7 @@ def _add_interfloor(
     floor_ids: list[int],
     seg: FloorSegmentation | None,
     config: GraphConfig,
+    executor: Executor | None = None,
 ) -> list[FloorMatch]:
     floor_z = _floor_z(kfs, initial)
     clouds = {
@@ -731,20 +738,25 @@ def _add_interfloor(
     yaw = math.radians(config.interfloor_sigma_yaw_deg)
     sig_xy = config.interfloor_sigma_xy_m
     tilt = _LOOSE_TILT_RAD
+    register = functools.partial(
+        register_floors,
+        voxel_m=config.interfloor_voxel_m,
+        min_fitness=config.interfloor_min_fitness,
+        ambiguity_ratio=config.interfloor_ambiguity_ratio,
+        max_correction_m=config.interfloor_max_correction_m,
+        max_correction_deg=config.interfloor_max_correction_deg,
+        seed=config.seed,
+    )
+    pairs = list(itertools.pairwise(floor_ids))
+    if executor is not None and len(pairs) > 1:
+        # Each pair on its own (one thread per process, the same seed): the same matches.
+        futures = [executor.submit(register, clouds[lower], clouds[upper], lower, upper)
+                   for lower, upper in pairs]
+        found = [future.result() for future in futures]
+    else:
+        found = [register(clouds[lower], clouds[upper], lower, upper) for lower, upper in pairs]
     matches = []
-    for lower, upper in itertools.pairwise(floor_ids):
-        match = register_floors(
-            clouds[lower],
-            clouds[upper],
-            lower,
-            upper,
-            voxel_m=config.interfloor_voxel_m,
-            min_fitness=config.interfloor_min_fitness,
-            ambiguity_ratio=config.interfloor_ambiguity_ratio,
-            max_correction_m=config.interfloor_max_correction_m,
-            max_correction_deg=config.interfloor_max_correction_deg,
-            seed=config.seed,
-        )
+    for (lower, upper), match in zip(pairs, found, strict=True):
         matches.append(match)
         if not match.accepted:
             builder.reject("interfloor")

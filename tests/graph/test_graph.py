@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -192,3 +193,50 @@ def test_floor_icp_holds_z_and_recovers_x_y_yaw(building: SyntheticBuilding) -> 
     recovered = project_xyyaw(fine) @ shift
     assert abs(recovered[0, 3]) < 0.003 and abs(recovered[1, 3]) < 0.003
     assert abs(math.degrees(math.atan2(recovered[1, 0], recovered[0, 0]))) < 0.01
+
+
+_POOL_CHECK = """
+import json, sys
+import mfmap
+mfmap.limit_threads()  # as `mfmap build` does: one thread, so the two runs can be compared bit for bit
+import numpy as np
+from mfmap.graph.config import GraphConfig
+from mfmap.graph.optimize import optimize_building
+from mfmap.graph.synthetic import make_building
+from mfmap.mapping.workers import worker_pool
+
+if __name__ == "__main__":
+    b = make_building((0, 1, 2), seed=5, floor_height_m=float(sys.argv[1]))
+    def run(executor):
+        return optimize_building(b.keyframes, b.edges, b.segmentation, b.pressure, GraphConfig(),
+                                 temperature_k=295.0, executor=executor)
+    serial = run(None)
+    with worker_pool(2, warm=False) as pool:
+        parallel = run(pool)
+    print(json.dumps({
+        "accepted": [m.accepted for m in serial.floor_matches],
+        "same_matches": all(
+            (a.lower, a.upper, a.fitness, a.rmse_m, a.reason) == (c.lower, c.upper, c.fitness, c.rmse_m, c.reason)
+            and np.array_equal(a.correction, c.correction)
+            for a, c in zip(serial.floor_matches, parallel.floor_matches, strict=True)),
+        "max_pose_diff": max(float(np.abs(serial.poses[i] - parallel.poses[i]).max()) for i in serial.poses),
+    }))
+"""
+
+
+def test_floor_pairs_registered_in_worker_processes_give_the_same_graph(tmp_path: Path) -> None:
+    """Three floors, two pairs: registered in the build's worker pool (one pair per process)
+    the matches and the optimised poses are the same bits as registered one after the other,
+    in a process limited to one thread as `mfmap build` is."""
+    import json
+    import subprocess
+    import sys
+
+    script = tmp_path / "pool_check.py"
+    script.write_text(_POOL_CHECK)
+    out = subprocess.run([sys.executable, str(script), str(FLOOR_HEIGHT_M)], capture_output=True,
+                         text=True, check=True, timeout=300)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result["accepted"] == [True, True]
+    assert result["same_matches"]
+    assert result["max_pose_diff"] == 0.0
