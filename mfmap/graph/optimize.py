@@ -752,12 +752,10 @@ def _add_interfloor(
         # Each pair on its own (one thread per process, the same seed): the same matches.
         futures = [executor.submit(register, clouds[lower], clouds[upper], lower, upper)
                    for lower, upper in pairs]
-        found = [future.result() for future in futures]
+        matches = [future.result() for future in futures]
     else:
-        found = [register(clouds[lower], clouds[upper], lower, upper) for lower, upper in pairs]
-    matches = []
-    for (lower, upper), match in zip(pairs, found, strict=True):
-        matches.append(match)
+        matches = [register(clouds[lower], clouds[upper], lower, upper) for lower, upper in pairs]
+    for (lower, upper), match in zip(pairs, matches, strict=True):
         if not match.accepted:
             builder.reject("interfloor")
             continue
