@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial import cKDTree
+from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
 from mfmap.types import F64
@@ -117,7 +117,7 @@ class _Target:
     def __init__(self, cloud: o3d.geometry.PointCloud) -> None:
         self.points = np.asarray(cloud.points)
         self.normals = np.asarray(cloud.normals)
-        self.tree = cKDTree(self.points)
+        self.tree = KDTree(self.points)
 
     def icp(self, source: F64, start: F64, max_distance_m: float, tilt: bool = False,
             iterations: int = 15) -> F64:
@@ -128,7 +128,7 @@ class _Target:
         tilt_weight = len(source) * (TILT_PRIOR_M_PER_DEG / math.radians(1.0)) ** -2
         for _ in range(iterations):
             moved = source @ pose[:3, :3].T + pose[:3, 3]
-            dist, idx = self.tree.query(moved, distance_upper_bound=max_distance_m)
+            dist, idx = self.tree.query(moved, k=1, distance_upper_bound=max_distance_m)
             ok = np.isfinite(dist)
             if np.count_nonzero(ok) < 6:
                 break

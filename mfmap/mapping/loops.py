@@ -12,18 +12,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
-from scipy.spatial import cKDTree
 
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_pose
 from mfmap.mapping.registration import (
+    IcpTarget,
     Registration,
     downsample,
     icp,
     information,
     to_o3d,
-    with_normals,
 )
 from mfmap.types import F32, F64, Keyframe, PoseEdge
 
@@ -78,22 +76,19 @@ def descriptor_distance(a: F64, b: F64) -> tuple[float, int]:
     return float(dist[shift]), shift
 
 
-def plane_fit(source: o3d.geometry.PointCloud, target: o3d.geometry.PointCloud, transform: F64,
+def plane_fit(source: F64, target: IcpTarget, transform: F64,
               max_distance_m: float) -> tuple[float, float]:
     """(share of source points near the target, point-to-plane RMSE of those points).
 
     Point-to-plane, because with a sparse 16-beam lidar point-to-point distances are dominated
     by the gaps between rings, not by misalignment.
     """
-    src = np.asarray(source.points) @ transform[:3, :3].T + transform[:3, 3]
-    tgt = np.asarray(target.points)
-    normals = np.asarray(target.normals)
-    dist, idx = cKDTree(tgt).query(src, distance_upper_bound=max_distance_m)
-    ok = np.isfinite(dist)
-    if not ok.any():
+    src = source @ transform[:3, :3].T + transform[:3, 3]
+    found, idx, _ = target.nearest(src, max_distance_m)
+    if len(found) == 0:
         return 0.0, float("inf")
-    residual = ((src[ok] - tgt[idx[ok]]) * normals[idx[ok]]).sum(axis=1)
-    return float(ok.mean()), float(np.sqrt(np.mean(residual**2)))
+    residual = ((src[found] - target.points[idx]) * target.normals[idx]).sum(axis=1)
+    return len(found) / len(src), float(np.sqrt(np.mean(residual**2)))
 
 
 @dataclass
@@ -213,10 +208,10 @@ class LoopCloser:
     def verify(self, target_points: F32 | F64, source_points: F32 | F64, guess: F64) -> LoopCheck:
         """Align source to target from guess; accept only a good, unambiguous, well-posed match."""
         coarse_voxel, fine_voxel = 0.5, 0.2
-        src_c = to_o3d(downsample(source_points, coarse_voxel))
-        tgt_c = with_normals(downsample(target_points, coarse_voxel), 3 * coarse_voxel)
-        src_f = to_o3d(downsample(source_points, fine_voxel))
-        tgt_f = with_normals(downsample(target_points, fine_voxel), 3 * fine_voxel)
+        src_c = downsample(source_points, coarse_voxel)
+        tgt_c = IcpTarget(downsample(target_points, coarse_voxel), 3 * coarse_voxel)
+        src_f = downsample(source_points, fine_voxel)
+        tgt_f = IcpTarget(downsample(target_points, fine_voxel), 3 * fine_voxel)
 
         def align(start: F64) -> Registration:
             coarse = icp(src_c, tgt_c, start, 3 * coarse_voxel, coarse_voxel, 40)
@@ -239,7 +234,7 @@ class LoopCloser:
             moved = float(np.linalg.norm(other.transform[:3, 3] - best.transform[:3, 3]))
             if moved > self.cfg.loop_ambiguity_m:
                 return LoopCheck(False, "ambiguous", result)
-        info = information(src_f, tgt_f, check_distance, best.transform)
+        info = information(to_o3d(src_f), tgt_f.cloud, check_distance, best.transform)
         eig = np.linalg.eigvalsh(info[3:, 3:])
         if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
             return LoopCheck(False, "degenerate", result)

@@ -7,7 +7,6 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from mfmap.mapping.geometry import (
     inverse,
@@ -17,7 +16,7 @@ from mfmap.mapping.geometry import (
     yaw_pose,
     yaw_rad,
 )
-from mfmap.mapping.registration import Registration, downsample, icp, to_o3d
+from mfmap.mapping.registration import IcpTarget, Registration, downsample, icp
 from mfmap.types import F64
 
 
@@ -55,7 +54,7 @@ class LocalMap:
         self.voxel_m = voxel_m
         self.radius_m = radius_m
         self._frames: deque[tuple[F64, F64]] = deque(maxlen=max_keyframes)  # (position, points)
-        self.target: o3d.geometry.PointCloud | None = None
+        self.target: IcpTarget | None = None
         self.size = 0
 
     def clear(self) -> None:
@@ -67,12 +66,8 @@ class LocalMap:
         self._frames.append((position, downsample(world_points, self.voxel_m)))
         near = [pts for (pos, pts) in self._frames
                 if np.linalg.norm(pos - position) <= self.radius_m]
-        merged = downsample(np.concatenate(near), self.voxel_m)
-        cloud = to_o3d(merged)
-        cloud.estimate_normals(
-            o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * self.voxel_m, max_nn=20))
-        self.target = cloud
-        self.size = len(merged)
+        self.target = IcpTarget(downsample(np.concatenate(near), self.voxel_m), 3.0 * self.voxel_m)
+        self.size = len(self.target)
 
 
 @dataclass(frozen=True)
@@ -133,8 +128,8 @@ class ScanMatcher:
         back along the way the robot drives, the more the further it is from the last map
         update: through the keyframes a metre apart that made the maps 0.05-0.2 % short, and
         the scans between keyframes, which the trajectory reports, came out up to 2.4 cm back
-        (two-floor seed 2, standing at a checkpoint 0.6 m past its keyframe). The pass builds
-        the target's k-d tree again (about two thirds of an ICP call's time).
+        (two-floor seed 2, standing at a checkpoint 0.6 m past its keyframe). Both passes query
+        the local map's k-d tree, built once with the map (`IcpTarget`).
 
         The fine pass stops by open3d's rule (fitness and inlier RMSE change by less than
         `tolerance`), usually after one or two iterations, while the pose is still creeping out
@@ -145,7 +140,7 @@ class ScanMatcher:
         if self.map.target is None or len(points_base) < 10:
             self._heading_var = None  # a new map: the heading starts from the registration
             return ScanMatch(predicted, 0.0, 0.0, False)
-        source = to_o3d(downsample(points_base, self.voxel_m))
+        source = downsample(points_base, self.voxel_m)
         max_distance = self.threshold.value_m
         result: Registration = icp(source, self.map.target, predicted, max_distance,
                                    max(max_distance / 3.0, 0.5 * self.voxel_m),
