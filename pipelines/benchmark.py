@@ -65,6 +65,7 @@ class ChildRun:
     returncode: int
     stdout: str
     stderr_tail: str
+    cpu_s: float = 0.0  # user + system time of the child and the children it reaped
 
     @property
     def ok(self) -> bool:
@@ -72,7 +73,10 @@ class ChildRun:
 
 
 def run_child(argv: list[str], env: dict[str, str] | None = None) -> ChildRun:
-    """Run a command; wall time and the child's own peak RSS (wait4's ru_maxrss).
+    """Run a command; wall time, the child's own peak RSS (wait4's ru_maxrss) and its CPU time.
+
+    The CPU time (wait4's user + system time) includes the processes the child waited for, such as
+    a build's worker pool; unlike the wall time it hardly moves with the machine's other load.
 
     Linux carries the peak RSS across fork and exec, so the figure is at least this process's RSS
     at spawn: callers keep the measuring process small (this module imports nothing heavy)."""
@@ -88,7 +92,8 @@ def run_child(argv: list[str], env: dict[str, str] | None = None) -> ChildRun:
         stderr = err.read().decode(errors="replace")
     tail = " ".join(stderr.strip().splitlines()[-3:])
     # ru_maxrss is in KiB on Linux.
-    return ChildRun(wall_s, usage.ru_maxrss / 1024.0, proc.returncode, stdout, tail)
+    return ChildRun(wall_s, usage.ru_maxrss / 1024.0, proc.returncode, stdout, tail,
+                    usage.ru_utime + usage.ru_stime)
 
 
 def _env(threads: int | None) -> dict[str, str]:
@@ -119,6 +124,7 @@ class BuildFigures:
     ok: bool
     error: str = ""
     walls_s: list[float] = field(default_factory=list)  # every run's wall time, with --repeat
+    cpu_s: float = 0.0  # CPU time of the build and its workers
 
     @property
     def realtime_factor(self) -> float:
@@ -165,7 +171,8 @@ def bench_build(label: str, log: Path, gt_trajectory: Path | None, out: Path, th
     elif run.ok and traj.exists():
         duration = tum_span_s(traj)[0]
     return BuildFigures(
-        label, str(log), duration, scans, run.wall_s, run.peak_rss_mb, run.ok, "" if run.ok else run.stderr_tail
+        label, str(log), duration, scans, run.wall_s, run.peak_rss_mb, run.ok,
+        "" if run.ok else run.stderr_tail, cpu_s=run.cpu_s,
     )
 
 
@@ -266,15 +273,15 @@ def _f(x: float, digits: int = 2) -> str:
 def scenario_table(rows: list[ScenarioFigures]) -> str:
     """mfmap build per scenario, and the peers on the same log as ratios."""
     lines = [
-        "| scenario | log s | scans | build s | real-time factor | scans/s | peak MB "
+        "| scenario | log s | scans | build s | real-time factor | build CPU s | scans/s | peak MB "
         "| bare MCAP iteration s (MB) | build / bare | ingest decode s (MB) | decode / bare "
         "| KISS-ICP scans/s (MB) | KISS-ICP / build scans/s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         b = row.build
         if not b.ok:
-            lines.append(f"| {b.label} | {_f(b.log_duration_s, 1)} | build failed: {_cell(b.error)} |" + " |" * 10)
+            lines.append(f"| {b.label} | {_f(b.log_duration_s, 1)} | build failed: {_cell(b.error)} |" + " |" * 11)
             continue
         peers = {p.name: p for p in row.peers}
         bare = peers.get("bare MCAP iteration")
@@ -286,6 +293,7 @@ def scenario_table(rows: list[ScenarioFigures]) -> str:
             str(b.scans),
             _wall_cell(b),
             f"{_f(b.realtime_factor, 1)}x",
+            _f(b.cpu_s, 1),
             _f(b.scans_per_s, 1),
             _f(b.peak_rss_mb, 0),
             _peer_cell(bare),
@@ -428,7 +436,8 @@ def main(argv: list[str] | None = None) -> int:
         f"Made by `python -m pipelines.benchmark {' '.join(argv if argv is not None else sys.argv[1:])}`".rstrip()
         + f" on {started}, {platform.machine()} with {cpus} CPUs, Python {platform.python_version()}. "
         "Whole-process figures of each child: wall time, peak RSS (`ru_maxrss`); real-time factor = "
-        "log duration / wall time.",
+        "log duration / wall time; build CPU s = user + system time of the build and its workers "
+        "(of the median run with `--repeat`).",
         "",
         scenario_table(rows),
     ]

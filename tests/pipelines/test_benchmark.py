@@ -21,7 +21,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_child_peak_memory_is_the_childs_own() -> None:
-    """A child that holds 300 MB reports at least that; a bare interpreter far less.
+    """A child that holds 300 MB reports at least that; a bare interpreter far less. The CPU time
+    includes what the child's own children used.
 
     Linux carries a process's peak RSS across fork and exec, so a child's figure is at least its
     parent's RSS at spawn: the measurement runs from a fresh, small interpreter, as the benchmark
@@ -32,16 +33,24 @@ def test_child_peak_memory_is_the_childs_own() -> None:
         "\"b = bytearray(300 * 2**20); b[::4096] = b'x' * len(b[::4096]); print(7)\"]);"
         "small = run_child([sys.executable, '-c', 'print(1)']);"
         "failed = run_child([sys.executable, '-c', 'import sys; sys.exit(3)']);"
-        "print(big.ok, big.stdout.strip(), big.peak_rss_mb, small.peak_rss_mb, failed.returncode, failed.ok)"
+        "spin = 'import time\\nt = time.process_time()\\nwhile time.process_time() - t < 0.6: pass';"
+        "busy = run_child([sys.executable, '-c', "
+        "f'import subprocess, sys; subprocess.run([sys.executable, \"-c\", {spin!r}], check=True)']);"
+        "print(big.ok, big.stdout.strip(), big.peak_rss_mb, small.peak_rss_mb, failed.returncode, failed.ok,"
+        " small.cpu_s, busy.ok, busy.cpu_s)"
     )
     res = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     )
-    big_ok, big_out, big_mb, small_mb, failed_rc, failed_ok = res.stdout.split()
+    big_ok, big_out, big_mb, small_mb, failed_rc, failed_ok, small_cpu, busy_ok, busy_cpu = res.stdout.split()
     assert big_ok == "True" and big_out == "7"
     assert float(big_mb) > 300
     assert float(small_mb) < 100
     assert failed_rc == "3" and failed_ok == "False"
+    # CPU time counts the processes the child reaped: a grandchild that spins for 0.6 s of CPU.
+    assert busy_ok == "True"
+    assert float(busy_cpu) >= 0.6 + float(small_cpu) * 0.5
+    assert float(small_cpu) < 0.5
 
 
 def test_tum_span(tmp_path: Path) -> None:
@@ -70,7 +79,7 @@ def test_repeated_builds_report_the_median_run_and_the_spread() -> None:
     best = median_run(runs)
     assert best.wall_s == 40.2 and best.peak_rss_mb == 580.0 and best.walls_s == [45.7, 34.3, 40.2]
     row = scenario_table([ScenarioFigures(best)])
-    assert "| x1 | 60.0 | 600 | 40.20 (median of 3: 34.30-45.70) | 1.5x |" in row
+    assert "| x1 | 60.0 | 600 | 40.20 (median of 3: 34.30-45.70) | 1.5x | 0.0 |" in row
     assert median_run([_fig(1, 30.0, 500.0), _fig(1, 50.0, 500.0)]).wall_s == 30.0
     broken = BuildFigures("x1", "log.mcap", 60.0, 0, 3.0, 90.0, False, "boom")
     assert median_run([runs[0], broken]) is broken
