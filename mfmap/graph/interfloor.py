@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
-from pykdtree.kdtree import KDTree
 from scipy.spatial.transform import Rotation
 
+from mfmap.mapping.registration import IcpTarget
 from mfmap.types import F64
 
 logger = logging.getLogger(__name__)
@@ -101,7 +101,7 @@ FINE_ITERATIONS = 100
 TILT_PRIOR_M_PER_DEG = 1.0
 
 
-class _Target:
+class _Target(IcpTarget):
     """A floor's cloud (horizontal normals) and its k-d tree, for point-to-plane ICP that holds z.
 
     With the walls' normals horizontal nothing measures z, and open3d's six-degree-of-freedom
@@ -114,11 +114,6 @@ class _Target:
     that converged.
     """
 
-    def __init__(self, cloud: o3d.geometry.PointCloud) -> None:
-        self.points = np.asarray(cloud.points)
-        self.normals = np.asarray(cloud.normals)
-        self.tree = KDTree(self.points)
-
     def icp(self, source: F64, start: F64, max_distance_m: float, tilt: bool = False,
             iterations: int = 15) -> F64:
         """Point-to-plane ICP from `start` in x, y and yaw; with `tilt` also roll and pitch,
@@ -128,11 +123,10 @@ class _Target:
         tilt_weight = len(source) * (TILT_PRIOR_M_PER_DEG / math.radians(1.0)) ** -2
         for _ in range(iterations):
             moved = source @ pose[:3, :3].T + pose[:3, 3]
-            dist, idx = self.tree.query(moved, k=1, distance_upper_bound=max_distance_m)
-            ok = np.isfinite(dist)
-            if np.count_nonzero(ok) < 6:
+            found, idx, _ = self.nearest(moved, max_distance_m)
+            if len(found) < 6:
                 break
-            p, q, n = moved[ok], self.points[idx[ok]], self.normals[idx[ok]]
+            p, q, n = moved[found], self.points[idx], self.normals[idx]
             residual = np.einsum("ij,ij->i", n, p - q)
             pivot = moved.mean(axis=0)
             # d residual / d (tx, ty, yaw[, roll, pitch about the pivot]), turns on the left.

@@ -209,9 +209,9 @@ class LoopCloser:
         """Align source to target from guess; accept only a good, unambiguous, well-posed match."""
         coarse_voxel, fine_voxel = 0.5, 0.2
         src_c = downsample(source_points, coarse_voxel)
-        tgt_c = IcpTarget(downsample(target_points, coarse_voxel), 3 * coarse_voxel)
+        tgt_c = IcpTarget.estimate(downsample(target_points, coarse_voxel), 3 * coarse_voxel)
         src_f = downsample(source_points, fine_voxel)
-        tgt_f = IcpTarget(downsample(target_points, fine_voxel), 3 * fine_voxel)
+        tgt_f = IcpTarget.estimate(downsample(target_points, fine_voxel), 3 * fine_voxel)
 
         def align(start: F64) -> Registration:
             coarse = icp(src_c, tgt_c, start, 3 * coarse_voxel, coarse_voxel, 40)

@@ -66,7 +66,8 @@ class LocalMap:
         self._frames.append((position, downsample(world_points, self.voxel_m)))
         near = [pts for (pos, pts) in self._frames
                 if np.linalg.norm(pos - position) <= self.radius_m]
-        self.target = IcpTarget(downsample(np.concatenate(near), self.voxel_m), 3.0 * self.voxel_m)
+        self.target = IcpTarget.estimate(downsample(np.concatenate(near), self.voxel_m),
+                                         3.0 * self.voxel_m)
         self.size = len(self.target)
 
 

@@ -49,13 +49,19 @@ def with_normals(points: F32 | F64, radius_m: float, max_nn: int = 20) -> o3d.ge
 
 
 class IcpTarget:
-    """A cloud with normals (open3d's estimate) and its k-d tree, for many ICP calls against it."""
+    """A cloud with normals and its k-d tree, for many ICP calls (or nearest-point queries)
+    against it."""
 
-    def __init__(self, points: F32 | F64, normal_radius_m: float, max_nn: int = 20) -> None:
-        self.cloud = with_normals(points, normal_radius_m, max_nn)
-        self.points: F64 = np.asarray(self.cloud.points)
-        self.normals: F64 = np.asarray(self.cloud.normals)
+    def __init__(self, cloud: o3d.geometry.PointCloud) -> None:
+        self.cloud = cloud
+        self.points: F64 = np.asarray(cloud.points)
+        self.normals: F64 = np.asarray(cloud.normals)
         self.tree = KDTree(self.points) if len(self.points) else None
+
+    @classmethod
+    def estimate(cls, points: F32 | F64, normal_radius_m: float, max_nn: int = 20) -> IcpTarget:
+        """The points with open3d's normals (`with_normals`)."""
+        return cls(with_normals(points, normal_radius_m, max_nn))
 
     def __len__(self) -> int:
         return len(self.points)
@@ -162,7 +168,7 @@ def register_pair(
     transform = np.eye(4) if init is None else np.asarray(init, dtype=np.float64)
     result = Registration(transform, 0.0, 0.0)
     for voxel in voxels_m:
-        target = IcpTarget(downsample(target_points, voxel), 3.0 * voxel)
+        target = IcpTarget.estimate(downsample(target_points, voxel), 3.0 * voxel)
         result = icp(downsample(source_points, voxel), target, result.transform, 3.0 * voxel,
                      voxel, max_iterations)
     return result

@@ -56,7 +56,7 @@ def test_icp_on_a_kept_tree_is_open3ds_registration_icp(
     """The same poses, fitness and RMSE as open3d's ICP to rounding, on real scans, from starts
     off the truth (so the result is many steps away from the start)."""
     source = downsample(_load(DATA / "source.ply"), voxel_m)
-    target = IcpTarget(downsample(_load(DATA / "target.ply"), voxel_m), 3.0 * voxel_m)
+    target = IcpTarget.estimate(downsample(_load(DATA / "target.ply"), voxel_m), 3.0 * voxel_m)
     init = np.loadtxt(DATA / "T_target_source.txt") @ yaw_pose(np.radians(offset_deg),
                                                                np.array([offset_m, -offset_m, 0.0]))
     ours = icp(source, target, init, 3.0 * voxel_m, kernel_m, iterations)
@@ -75,7 +75,7 @@ def test_icp_on_a_plane_or_out_of_reach_keeps_the_start_as_open3d_does() -> None
     out of reach has no correspondences (fitness 0, the start kept)."""
     rng = np.random.default_rng(3)
     floor = np.column_stack([rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)])
-    target = IcpTarget(floor, 0.3)
+    target = IcpTarget.estimate(floor, 0.3)
     init = yaw_pose(0.05, np.array([0.2, 0.1, 0.03]))
     for start in (init, yaw_pose(0.0, np.array([50.0, 0.0, 0.0]))):
         ours = icp(floor[::4], target, start, 0.3, 0.1, 30)
