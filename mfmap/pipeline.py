@@ -171,6 +171,15 @@ def build(
             trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress, pool)
             timings["accumulate"] = time.perf_counter() - t0
 
+            from mfmap.export.cabin import measure_from_log
+
+            t0 = time.perf_counter()
+            # The scans in the elevator cabins, left out of the maps, measure the cabins.
+            cabins, cabin_warnings = measure_from_log(src, seg, trajectory.stamps_ns,
+                                                      trajectory.poses, extrinsics)
+            warnings += [f"export: {w}" for w in cabin_warnings]
+            timings["cabins"] = time.perf_counter() - t0
+
             t0 = time.perf_counter()
             counts = {
                 "floors": len(seg.floors),
@@ -200,8 +209,9 @@ def build(
                 summary = write_outputs(
                     partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
                     title=f"mfmap build of {log.name}", html=cfg.export.html_report,
-                    pool=pool, pressure_png=pressure_png,
+                    pool=pool, pressure_png=pressure_png, cabins=cabins,
                 )
+                warnings += summary.warnings
         timings["export"] = time.perf_counter() - t0
         elapsed = time.perf_counter() - started
         _finish_report(partial, timings, elapsed, log_duration_s)

@@ -8,7 +8,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-FILES = ["trajectory.tum", "map.ply", "floors.json", "floors/0/grid.pgm", "floors/1/grid.pgm"]
+FILES = ["trajectory.tum", "map.ply", "floors.json", "floors/0/grid.pgm", "floors/1/grid.pgm", "map.mcap",
+         "building.yaml", "floors/index.yaml"]
 
 
 def _digest(folder: Path) -> dict[str, str]:

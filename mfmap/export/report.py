@@ -89,8 +89,9 @@ def html_report(
     pressure_png: bytes | None,
     grid_pngs: dict[int, bytes],
     side_png: bytes,
+    view: str | None = None,
 ) -> str:
-    """The page: numbers, pressure trace, side view, one grid per floor."""
+    """The page: numbers, the 3D view (`viewer.view_html`), pressure trace, side view, grids."""
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title>",
@@ -101,6 +102,8 @@ def html_report(
     ]
     summary = report.get("summary", {})
     parts.append(_table([[k, v] for k, v in summary.items()], ["", "value"]))
+    if view is not None:
+        parts.append(view)
     parts.append("<h2>Floors</h2>")
     parts.append(
         _table(

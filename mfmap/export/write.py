@@ -12,11 +12,17 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from mfmap.atomic import atomic_open
+from mfmap.export.cabin import Cabin
 from mfmap.export.files import tum_text, write_bytes, write_json, write_ply, write_text, write_yaml
 from mfmap.export.floorsjson import floors_json
+from mfmap.export.foxglove import FloorMap, layout_json, write_mcap
 from mfmap.export.grid import OccupancyGrid
 from mfmap.export.mapdata import MapAccumulator
+from mfmap.export.nav2 import floors_index
 from mfmap.export.report import html_report, pressure_plot_png, side_view_png, side_view_sample
+from mfmap.export.rmf import building_yaml
+from mfmap.export.viewer import view_data, view_html
 from mfmap.graph.optimize import GraphResult
 from mfmap.types import F64, FloorSegmentation, MappingResult
 
@@ -37,6 +43,7 @@ class ExportSummary:
     grid_cells: dict[int, dict[str, int]] = field(default_factory=dict)
     trajectory_poses: int = 0
     floors_doc: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)  # what the exports could not hold
 
 
 def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
@@ -122,6 +129,34 @@ def elevations(graph: GraphResult, mapping: MappingResult) -> dict[int, float]:
     return {f: z - ref for f, z in graph.floor_z_m.items()}
 
 
+def cabin_json(cabin: Cabin) -> dict[str, Any]:
+    """A measured cabin for report.json."""
+    return {"x": cabin.x_m, "y": cabin.y_m, "yaw_rad": cabin.yaw_rad,
+            "inner_width_m": cabin.inner_width_m, "inner_depth_m": cabin.inner_depth_m,
+            "floors": list(cabin.floors), "rides": cabin.rides, "scans": cabin.scans,
+            "doors": {str(f): {"side": d.side, "offset_m": d.offset_m, "width_m": d.width_m,
+                               "open_share": d.open_share} for f, d in sorted(cabin.doors.items())}}
+
+
+def write_building(folder: Path, title: str, floors_doc: dict[str, Any], clouds: dict[int, np.ndarray],
+                   grids: dict[int, OccupancyGrid], elevation: dict[int, float],
+                   cabins: Sequence[Cabin], trajectory: Trajectory) -> list[str]:
+    """map.mcap and its Foxglove layout, building.yaml, floors/index.yaml; their warnings."""
+    floors = [FloorMap(f, elevation.get(f, 0.0), clouds[f], grids.get(f)) for f in sorted(clouds)]
+    with atomic_open(folder / "map.mcap", "wb") as f:
+        write_mcap(f, floors, floors_doc, list(cabins), trajectory.stamps_ns, trajectory.poses)
+    write_text(folder / "foxglove_layout.json", layout_json(floors))
+    index, warnings = floors_index(floors_doc, {f: f"{f}/grid.yaml" for f in grids},
+                                   trajectory.stamps_ns, trajectory.poses)
+    write_yaml(folder / "floors" / "index.yaml", index)
+    images = {f: {"image": f"floors/{f}/grid.pgm", "resolution": g.resolution_m,
+                  "origin": [float(g.origin_xy[0]), float(g.origin_xy[1])], "height": g.shape[0]}
+              for f, g in grids.items()}
+    building, more = building_yaml(title, floors_doc, images, list(cabins), index)
+    write_yaml(folder / "building.yaml", building)
+    return warnings + more
+
+
 def write_outputs(
     folder: Path,
     seg: FloorSegmentation,
@@ -135,8 +170,10 @@ def write_outputs(
     html: bool = True,
     pool: Executor | None = None,
     pressure_png: Future[bytes] | None = None,
+    cabins: Sequence[Cabin] = (),
 ) -> ExportSummary:
-    """Write map.ply, trajectory.tum, floors.json, floors/<id>/..., report.json/html, config.yaml.
+    """Write map.ply, trajectory.tum, floors.json, floors/<id>/..., map.mcap, building.yaml,
+    floors/index.yaml, report.json/html, config.yaml.
 
     With `pool`, report.html's side view is drawn by a worker while the files are written;
     `pressure_png` is the pressure figure, already submitted to one.
@@ -160,6 +197,7 @@ def write_outputs(
     if html and pool is not None:
         side_view = pool.submit(side_view_png, *side_view_sample(xyz, floor))
     grid_pngs: dict[int, bytes] = {}
+    grids: dict[int, OccupancyGrid] = {}
     for floor_id, cloud in clouds.items():
         sub = folder / "floors" / str(floor_id)
         write_ply(sub / "cloud.ply", cloud)
@@ -167,6 +205,7 @@ def write_outputs(
         on_floor = trajectory.floor == floor_id
         traj_xy = trajectory.poses[on_floor, :2, 3] if on_floor.any() else None
         grid: OccupancyGrid = maps.grid(floor_id, traj_xy)
+        grids[floor_id] = grid
         write_bytes(sub / "grid.pgm", grid.pgm_bytes())
         write_yaml(sub / "grid.yaml", grid.yaml_dict("grid.pgm"))
         png = grid.png_bytes(traj_xy)
@@ -179,12 +218,18 @@ def write_outputs(
             "free": int(grid.free.sum()),
         }
     write_ply(folder / "map.ply", xyz, floor)
+    elevation = {f["id"]: float(f["elevation_m"]) for f in floors_doc["floors"]}
+    export_warnings = write_building(folder, title, floors_doc, clouds, grids, elevation, cabins,
+                                     trajectory)
 
     report = dict(report)
+    summary.warnings = [f"export: {w}" for w in export_warnings]
+    report["warnings"] = [*report.get("warnings", []), *summary.warnings]
     report["exports"] = {
         "points_per_floor": {str(k): v for k, v in summary.points_per_floor.items()},
         "grids": {str(k): v for k, v in summary.grid_cells.items()},
         "trajectory_poses": summary.trajectory_poses,
+        "cabins": [cabin_json(c) for c in cabins],
     }
     write_json(folder / "report.json", report)
     if html:
@@ -194,7 +239,9 @@ def write_outputs(
         elif len(seg.stamp_ns) > 1:
             pressure = pressure_plot_png(seg)
         side = side_view.result() if side_view is not None else side_view_png(*side_view_sample(xyz, floor))
-        page = html_report(title, report, floors_doc, pressure, grid_pngs, side)
+        view = view_html(view_data(clouds, elevation, trajectory.poses[:, :3, 3] if len(trajectory.poses)
+                                   else np.zeros((0, 3)), floors_doc, cabins))
+        page = html_report(title, report, floors_doc, pressure, grid_pngs, side, view)
         write_text(folder / "report.html", page)
     write_text(folder / "config.yaml", config_yaml)
     summary.files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())

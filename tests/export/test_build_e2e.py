@@ -24,6 +24,7 @@ from mfmap.export.score import GRID_KEYS, load_grid, score_build
 from tests.logcopy import copy_log
 
 EXPECTED = [
+    "building.yaml",
     "config.yaml",
     "floors.json",
     "floors/0/cloud.ply",
@@ -34,6 +35,9 @@ EXPECTED = [
     "floors/1/grid.pgm",
     "floors/1/grid.png",
     "floors/1/grid.yaml",
+    "floors/index.yaml",
+    "foxglove_layout.json",
+    "map.mcap",
     "map.ply",
     "report.html",
     "report.json",
