@@ -13,6 +13,9 @@ for lib in libusb-1.0.so.0:libusb-1.0-0 libGL.so.1:libgl1 libEGL.so.1:libegl1 li
     so=${lib%%:*}; pkg=${lib##*:}
     ldconfig -p 2>/dev/null | grep -q "$so" || need_apt+=("$pkg")
 done
+# The report's 3D view is tested in a real browser: Debian's Chromium, driven by playwright's
+# Python package (which then downloads no browser of its own).
+[ -x /usr/bin/chromium ] || need_apt+=(chromium)
 if [ ${#need_apt[@]} -gt 0 ]; then
     echo "setup: installing system packages: ${need_apt[*]}"
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"

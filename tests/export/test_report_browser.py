@@ -1,0 +1,108 @@
+"""report.html's 3D view in a real headless browser (Debian's Chromium, driven by playwright)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.slow
+CHROMIUM = Path(os.environ.get("MFMAP_CHROMIUM", "/usr/bin/chromium"))
+FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+BACKGROUND = np.array([250, 250, 250])
+
+
+@pytest.fixture(scope="module")
+def page(sim_build: Callable[[str], tuple[Path, Path]], tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, list[str]]]:
+    if not CHROMIUM.exists():
+        pytest.fail(f"{CHROMIUM} is missing: `make setup` installs Debian's chromium for this test")
+    from playwright.sync_api import sync_playwright
+
+    _, out = sim_build("two-floor")
+    profile = tmp_path_factory.mktemp("chromium-profile")
+    with sync_playwright() as pw:
+        context = pw.chromium.launch_persistent_context(
+            str(profile), executable_path=str(CHROMIUM), headless=True, args=FLAGS,
+            viewport={"width": 1200, "height": 900})
+        try:
+            tab = context.new_page()
+            errors: list[str] = []
+            tab.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            tab.on("pageerror", lambda e: errors.append(str(e)))
+            # Offline: any request leaving the page's own file is an error.
+            tab.route("**/*", lambda route: route.continue_() if route.request.url.startswith("file:")
+                      else (errors.append(f"request to {route.request.url}"), route.abort()))
+            tab.goto((out / "report.html").as_uri())
+            tab.wait_for_selector("canvas#mfmap-3d[data-ready='1']", timeout=60_000)
+            yield tab, errors
+        finally:
+            context.close()
+
+
+def _shot(tab: Any) -> np.ndarray:
+    tab.wait_for_timeout(150)  # the view redraws on the next animation frame
+    png = tab.locator("#mfmap-3d").screenshot()
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1].astype(int)  # RGB
+    return np.asarray(img[2:-2, 2:-2])  # without the canvas's border
+
+
+def _shares(img: np.ndarray) -> dict[str, float]:
+    """Shares of the canvas drawn at all, and in floor 0's blue and floor 1's orange."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    drawn = np.abs(img - BACKGROUND).sum(axis=-1) > 30
+    n = float(drawn.size)
+    return {"drawn": drawn.sum() / n,
+            "blue": (drawn & (b > r + 60)).sum() / n,
+            "orange": (drawn & (r > b + 60) & (g > 0.35 * r)).sum() / n}
+
+
+def _toggle(tab: Any, name: str) -> None:
+    tab.locator(f"input[data-toggle='{name}']").click()
+
+
+def test_report_page_is_small_and_offline(sim_build: Callable[[str], tuple[Path, Path]]) -> None:
+    _, out = sim_build("two-floor")
+    page_html = (out / "report.html").read_text()
+    assert len(page_html.encode()) < 5_000_000
+    assert "http://" not in page_html and "https://" not in page_html
+
+
+def test_3d_view_draws_and_its_toggles_change_it(page: tuple[Any, list[str]]) -> None:
+    tab, errors = page
+    start = _shares(_shot(tab))
+    assert start["drawn"] > 0.05 and start["blue"] > 0.01 and start["orange"] > 0.01, start
+    _toggle(tab, "trajectory")
+    _toggle(tab, "connectors")
+    _toggle(tab, "L1")
+    no_upper = _shares(_shot(tab))
+    assert no_upper["orange"] < 0.001 and no_upper["blue"] > 0.01, no_upper
+    _toggle(tab, "L0")
+    empty = _shares(_shot(tab))
+    assert empty["drawn"] < 0.002, empty
+    _toggle(tab, "L1")
+    only_upper = _shares(_shot(tab))
+    assert only_upper["orange"] > 0.01 and only_upper["blue"] < 0.001, only_upper
+    assert errors == []
+
+
+def test_3d_view_rotates_and_zooms(page: tuple[Any, list[str]]) -> None:
+    tab, errors = page
+    box = tab.locator("#mfmap-3d").bounding_box()
+    before = _shot(tab)
+    tab.mouse.move(box["x"] + 300, box["y"] + 300)
+    tab.mouse.down()
+    tab.mouse.move(box["x"] + 450, box["y"] + 340, steps=5)
+    tab.mouse.up()
+    rotated = _shot(tab)
+    assert np.abs(rotated - before).sum(axis=-1).astype(bool).mean() > 0.02
+    drawn = _shares(rotated)["drawn"]
+    tab.mouse.move(box["x"] + 500, box["y"] + 310)
+    tab.mouse.wheel(0, -600)  # zoom in: the building fills more of the canvas
+    assert _shares(_shot(tab))["drawn"] > 1.3 * drawn
+    assert errors == []
