@@ -34,7 +34,9 @@ _SIDE_AXIS = {"right": (0, 1.0), "left": (0, -1.0), "front": (1, 1.0), "back": (
 MAX_RANGE_M = 30.0  # through an open door the lidar sees the landing and the corridor beyond
 BAND_Z_M = (0.25, 2.0)  # heights above the base that see walls, not the cabin's floor or roof
 DOOR_WINDOW_S = 20.0  # before and after a ride the robot stands in the cabin with the doors open
-MAX_SCANS_PER_PHASE = 25  # scans read per ride, and per door phase (they all see the same box)
+MAX_SCANS_PER_PHASE = 12  # scans read per ride, and per door phase (they all see the same box)
+MAX_POINTS_PER_SCAN = 8000  # every k-th return kept: walls 1 m away are sampled far finer than 1 cm
+HEADING_POINTS = 40_000  # returns the heading search looks at
 INSIDE_M = 0.35  # a scan counts as taken in the cabin this close to the robot's ride position
 SAME_SHAFT_M = 1.0  # rides whose positions are this close use the same cabin
 
@@ -184,7 +186,9 @@ def _add_scan(phase: _Phase, xyz: np.ndarray, to_base: np.ndarray | None, pose: 
     keep = (rng2 >= 0.4**2) & (rng2 <= MAX_RANGE_M**2)
     if not planar:
         keep &= (pts[:, 2] >= BAND_Z_M[0]) & (pts[:, 2] <= BAND_Z_M[1])
-    world = pts[keep] @ pose[:3, :3].T + pose[:3, 3]
+    pts = pts[keep]
+    pts = pts[::max(1, -(-pts.shape[0] // MAX_POINTS_PER_SCAN))]
+    world = pts @ pose[:3, :3].T + pose[:3, 3]
     phase.xy.append(world[:, :2])
     phase.origin.append((pose[:3, :3] @ sensor + pose[:3, 3])[:2])
 
@@ -244,7 +248,7 @@ def fit_cabin_box(xy: np.ndarray, robot_xy: np.ndarray) -> tuple[np.ndarray, flo
     near = xy[np.hypot(*(xy - robot_xy).T) < 2.5]
     if near.shape[0] < 200:
         return None
-    yaw = cabin_heading(near, robot_xy)
+    yaw = cabin_heading(near[::max(1, -(-near.shape[0] // HEADING_POINTS))], robot_xy)
     local = _rotate(near - robot_xy, -yaw)
     centre = np.zeros(2)
     half = np.array([0.5, 0.5])  # strip half-widths: first pass near the robot only
@@ -278,6 +282,8 @@ def door_of(phase: _Phase, centre: np.ndarray, yaw: float, size: np.ndarray) -> 
     if not phase.xy:
         return None
     half = size / 2
+    scans = [(_rotate(xy - centre, -yaw), _rotate((origin - centre)[None, :], -yaw)[0])
+             for xy, origin in zip(phase.xy, phase.origin, strict=True)]
     best: CabinDoor | None = None
     for side in SIDES:
         axis, sign = _SIDE_AXIS[side]
@@ -285,9 +291,7 @@ def door_of(phase: _Phase, centre: np.ndarray, yaw: float, size: np.ndarray) -> 
         crossings: list[np.ndarray] = []
         on_wall: list[np.ndarray] = []
         total = 0
-        for xy, origin in zip(phase.xy, phase.origin, strict=True):
-            local = _rotate(xy - centre, -yaw)
-            o = _rotate((origin - centre)[None, :], -yaw)[0]
+        for local, o in scans:
             depth = sign * local[:, axis]
             # Rays towards this wall (they end beyond the interior's middle on its side).
             towards = depth > 0.3 * half[axis]
