@@ -787,7 +787,8 @@ def render_summary(result: BuildResult) -> RenderableType:
     lines = Text(
         f"built {result.log.name} ({result.log_duration_s:.0f} s of log) in {result.elapsed_s:.1f} s: "
         f"{result.realtime_factor:.1f}x real time ({timing})\noutputs: {result.out}/ "
-        f"(map.ply, trajectory.tum, floors.json, floors/<id>/grid.pgm|yaml|png, report.html)"
+        f"(map.ply, trajectory.tum, floors.json, floors/<id>/grid.pgm|yaml|png, floors/index.yaml, "
+        f"map.mcap, building.yaml, report.html)"
     )
     return Group(floors, transitions, factors, lines)
 
