@@ -160,7 +160,6 @@ def read_cabin_scans(src: LogSource, seg: FloorSegmentation, stamps_ns: np.ndarr
     return rides
 
 
-
 def _windows(wanted: dict[int, tuple[_Ride, str, int]], max_gap_ns: int = 2_000_000_000) -> list[tuple[int, int]]:
     """Spans of the log to decode: the wanted stamps, split where they are far apart."""
     stamps = sorted(wanted)

@@ -183,8 +183,15 @@ _SCRIPT = r"""
     }
     ctx.textAlign = "left";
   }
-  let pending = false;
-  function redraw() { if (!pending) { pending = true; requestAnimationFrame(() => { pending = false; render(); }); } }
+  // The canvas tells when it has drawn what was asked (data-frames counts the frames drawn,
+  // data-busy is 1 while one is due), so a test or script can wait for the view to settle.
+  let pending = false, frames = 0;
+  function drawn() { canvas.dataset.frames = String(++frames); canvas.dataset.busy = pending ? "1" : "0"; }
+  function redraw() {
+    if (pending) return;
+    pending = true; canvas.dataset.busy = "1";
+    requestAnimationFrame(() => { pending = false; render(); drawn(); });
+  }
   const controls = document.getElementById("mfmap-3d-controls");
   function toggle(label, checked, onchange, colour) {
     const l = document.createElement("label");
@@ -219,6 +226,7 @@ _SCRIPT = r"""
   });
   canvas.addEventListener("wheel", e => { cam.dist *= Math.exp(e.deltaY * 0.001); e.preventDefault(); redraw(); }, {passive: false});
   render();
+  drawn();
   canvas.dataset.ready = "1";
 })();
 """

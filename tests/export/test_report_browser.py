@@ -45,8 +45,16 @@ def page(sim_build: Callable[[str], tuple[Path, Path]], tmp_path_factory: pytest
             context.close()
 
 
-def _shot(tab: Any) -> np.ndarray:
-    tab.wait_for_timeout(150)  # the view redraws on the next animation frame
+def _frames(tab: Any) -> int:
+    return int(tab.locator("#mfmap-3d").get_attribute("data-frames"))
+
+
+def _shot(tab: Any, after: int | None = None) -> np.ndarray:
+    """The canvas once it has drawn a frame after frame `after` and has none due."""
+    if after is not None:
+        tab.wait_for_function(
+            f"(c => Number(c.dataset.frames) > {after} && c.dataset.busy === '0')"
+            "(document.getElementById('mfmap-3d'))", timeout=60_000)
     png = tab.locator("#mfmap-3d").screenshot()
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1].astype(int)  # RGB
     return np.asarray(img[2:-2, 2:-2])  # without the canvas's border
@@ -62,8 +70,17 @@ def _shares(img: np.ndarray) -> dict[str, float]:
             "orange": (drawn & (r > b + 60) & (g > 0.35 * r)).sum() / n}
 
 
-def _toggle(tab: Any, name: str) -> None:
+def _spread_px(img: np.ndarray) -> float:
+    """How far the drawn pixels spread over the canvas (their rms distance from their centre)."""
+    rows, cols = np.nonzero(np.abs(img - BACKGROUND).sum(axis=-1) > 30)
+    return float(np.sqrt(rows.var() + cols.var()))
+
+
+def _toggle(tab: Any, name: str) -> int:
+    """Click a toggle; the frame count before it (for `_shot`)."""
+    before = _frames(tab)
     tab.locator(f"input[data-toggle='{name}']").click()
+    return before
 
 
 def test_report_page_is_small_and_offline(sim_build: Callable[[str], tuple[Path, Path]]) -> None:
@@ -79,30 +96,31 @@ def test_3d_view_draws_and_its_toggles_change_it(page: tuple[Any, list[str]]) ->
     assert start["drawn"] > 0.05 and start["blue"] > 0.01 and start["orange"] > 0.01, start
     _toggle(tab, "trajectory")
     _toggle(tab, "connectors")
-    _toggle(tab, "L1")
-    no_upper = _shares(_shot(tab))
+    no_upper = _shares(_shot(tab, _toggle(tab, "L1")))
     assert no_upper["orange"] < 0.001 and no_upper["blue"] > 0.01, no_upper
-    _toggle(tab, "L0")
-    empty = _shares(_shot(tab))
+    empty = _shares(_shot(tab, _toggle(tab, "L0")))
     assert empty["drawn"] < 0.002, empty
-    _toggle(tab, "L1")
-    only_upper = _shares(_shot(tab))
+    only_upper = _shares(_shot(tab, _toggle(tab, "L1")))
     assert only_upper["orange"] > 0.01 and only_upper["blue"] < 0.001, only_upper
     assert errors == []
 
 
 def test_3d_view_rotates_and_zooms(page: tuple[Any, list[str]]) -> None:
     tab, errors = page
+    tab.reload()  # every toggle on again, the first view
+    tab.wait_for_selector("canvas#mfmap-3d[data-ready='1']", timeout=60_000)
     box = tab.locator("#mfmap-3d").bounding_box()
     before = _shot(tab)
+    n = _frames(tab)
     tab.mouse.move(box["x"] + 300, box["y"] + 300)
     tab.mouse.down()
     tab.mouse.move(box["x"] + 450, box["y"] + 340, steps=5)
     tab.mouse.up()
-    rotated = _shot(tab)
+    rotated = _shot(tab, n)
     assert np.abs(rotated - before).sum(axis=-1).astype(bool).mean() > 0.02
-    drawn = _shares(rotated)["drawn"]
+    spread = _spread_px(rotated)
     tab.mouse.move(box["x"] + 500, box["y"] + 310)
-    tab.mouse.wheel(0, -600)  # zoom in: the building fills more of the canvas
-    assert _shares(_shot(tab))["drawn"] > 1.3 * drawn
+    n = _frames(tab)
+    tab.mouse.wheel(0, -600)  # zoom in (the view moves 0.55 times as far): the building grows
+    assert _spread_px(_shot(tab, n)) > 1.3 * spread
     assert errors == []
