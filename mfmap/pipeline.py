@@ -10,10 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import resource
-import shutil
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor
@@ -23,8 +20,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mfmap.atomic import disk_error, is_disk_error
 from mfmap.config import MfmapConfig, dump_config
-from mfmap.errors import MissingDataError, OutputError
+from mfmap.errors import MissingDataError
 from mfmap.mapping.geometry import (
     deskew,
     gyro_bias,
@@ -35,6 +33,8 @@ from mfmap.mapping.geometry import (
     twist,
 )
 from mfmap.progress import NullProgress, Progress, StageProgress
+from mfmap.runfolder import RunFolder, input_size
+from mfmap.threads import unlimited_threads
 from mfmap.types import (
     F64,
     I64,
@@ -90,27 +90,32 @@ def build(
     cfg: MfmapConfig,
     force: bool = False,
     progress: Progress | None = None,
+    inputs: Sequence[Path] = (),
 ) -> BuildResult:
     """Build the building map of `log` into the folder `out`.
+
+    `out` is checked before any work (see `mfmap.runfolder.check_output`): never an input or a
+    folder holding one (`inputs`: the config file and other files the caller read), never the
+    working directory, and an existing one is replaced only with `force` when mfmap wrote it.
 
     Bit-for-bit reproducible only when the process called `mfmap.limit_threads()` before it
     imported this module (as `mfmap build` does); otherwise the report carries a warning.
     """
-    from mfmap.export.write import write_outputs
-    from mfmap.ingest import open_log
-    from mfmap.threads import unlimited_threads
-
     started = time.perf_counter()
     progress = progress or NullProgress()
     log, out = Path(log), Path(out)
-    _check_output(out, force)
+    # Checked before the heavy imports, so a refused output folder costs no time.
+    run = RunFolder.create(out, [log, *inputs], _log_folders(log), force, input_size(log))
+    partial = run.partial
     timings: dict[str, float] = {}
-    warnings: list[str] = []
+    warnings: list[str] = [f"build: {note}" for note in run.notes]
     threads = unlimited_threads()
     if threads is not None:
         warnings.append(f"build: {threads}")
-    partial = _make_partial(out)
     try:
+        from mfmap.export.write import write_outputs
+        from mfmap.ingest import open_log
+
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
             warnings += [f"ingest: {w}" for w in src.warnings]
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
@@ -215,9 +220,14 @@ def build(
         timings["export"] = time.perf_counter() - t0
         elapsed = time.perf_counter() - started
         _finish_report(partial, timings, elapsed, log_duration_s)
-        _commit(partial, out)
+        run.commit()
+    except OSError as err:
+        run.discard()
+        if is_disk_error(err):
+            raise disk_error(err, out) from err
+        raise
     except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
+        run.discard()
         raise
     doc = summary.floors_doc
     return BuildResult(
@@ -699,38 +709,14 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
 # ----- the output folder -------------------------------------------------------------------
 
 
-def _check_output(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise OutputError("exists and is not a folder", out)
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise OutputError("exists and is not empty (use --force to replace it)", out)
-    if not out.parent.exists():
-        try:
-            out.parent.mkdir(parents=True)
-        except OSError as err:
-            raise OutputError(f"cannot create the parent folder ({err.strerror})", out.parent) from err
-
-
-def _make_partial(out: Path) -> Path:
-    try:
-        partial = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(partial, 0o777 & ~mask)  # mkdtemp makes it private (0700)
-        return partial
-    except OSError as err:
-        raise OutputError(f"cannot write here ({err.strerror})", out.parent) from err
-
-
-def _commit(partial: Path, out: Path) -> None:
-    """Rename the finished partial folder into place (replacing an old OUT only now)."""
-    old: Path | None = None
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=out.parent))
-        os.replace(out, old / out.name)
-    os.replace(partial, out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+def _log_folders(log: Path) -> list[Path]:
+    """The folders that are part of the log: a bag folder or a folder of .mcap files (also when
+    the log is named by its metadata.yaml or one of its .db3 files)."""
+    if log.is_dir():
+        return [log]
+    if log.suffix == ".db3" or log.name == "metadata.yaml":
+        return [log.parent]
+    return []
 
 
 def _finish_report(folder: Path, timings: dict[str, float], elapsed_s: float, log_s: float) -> None:
