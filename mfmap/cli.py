@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -260,7 +261,8 @@ def build(
     from mfmap.pipeline import build as run_build
     from mfmap.pipeline import render_summary
 
-    result = run_build(log, out, cfg, force=force, progress=RichProgress())
+    result = run_build(log, out, cfg, force=force, progress=RichProgress(),
+                       inputs=[config] if config is not None else [])
     console.print(render_summary(result))
     for warning in result.warnings:
         err_console.print(f"[yellow]warning:[/yellow] {warning}")
@@ -315,7 +317,25 @@ def eval_cmd(
         raise typer.Exit(EXIT_THRESHOLD)
 
 
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM: unwinds the command like Ctrl-C (partial outputs removed, workers
+    stopped). A BaseException of its own, so typer does not turn it into 'Aborted!'."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signal.Signals(signum).name)
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    # Once: a second signal must not cut the clean-up short.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
 def main() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupt)
     try:
         app()
     except MfmapError as err:
@@ -323,6 +343,10 @@ def main() -> None:
             raise
         err_console.print(f"[red]mfmap: error:[/red] {err}", highlight=False, soft_wrap=True)
         sys.exit(err.exit_code)
+    except Interrupted as stop:
+        err_console.print(f"[red]mfmap: interrupted[/red] ({stop}): nothing was left half-written",
+                          highlight=False)
+        sys.exit(128 + stop.signum)
 
 
 if __name__ == "__main__":
