@@ -117,7 +117,7 @@ def build(
         from mfmap.ingest import open_log
 
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
-            warnings += [f"ingest: {w}" for w in src.warnings]
+            ingest_at = len(warnings)  # the log's warnings go here, once every stream is read
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
             pool = None
@@ -185,6 +185,7 @@ def build(
             warnings += [f"export: {w}" for w in cabin_warnings]
             timings["cabins"] = time.perf_counter() - t0
 
+            warnings[ingest_at:ingest_at] = [f"ingest: {w}" for w in src.warnings]
             t0 = time.perf_counter()
             counts = {
                 "floors": len(seg.floors),

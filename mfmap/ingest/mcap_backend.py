@@ -18,11 +18,13 @@ import io
 import logging
 import os
 import struct
+from array import array
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import (
@@ -78,6 +80,8 @@ class _FileIndex:
     in_order: bool = True
     damaged: str | None = None  # what went wrong, for the warning
     recovered: int = 0  # messages read before the damage
+    # Per channel, blocks of (chunk offset, offset in the chunk, log time): recording order.
+    times: dict[int, list[np.ndarray[Any, np.dtype[np.int64]]]] = field(default_factory=dict)
 
 
 class _Decoders:
@@ -172,6 +176,17 @@ class McapBackend:
             return iters[0]
         return heapq.merge(*iters, key=lambda m: m.log_time_ns)
 
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]] | None:
+        """Log times of the topic's messages in recording order (file, then place in it)."""
+        parts = []
+        for fi in self.files:
+            blocks = [b for cid, ch in fi.channels.items() if ch.topic == topic
+                      for b in fi.times.get(cid, [])]
+            if blocks:
+                rows = np.concatenate(blocks)
+                parts.append(rows[np.lexsort((rows[:, 1], rows[:, 0])), 2])
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
     def deserialize(self, message: RawMessage) -> Any:
         schema, channel, data = message.payload
         return self._decoders.get(schema, channel)(data)
@@ -249,6 +264,10 @@ def _read_message_indexes(f: io.BufferedReader, summary: Summary, fi: _FileIndex
                 times = [t for t, _ in record.records]
                 fi.counts[cid] = fi.counts.get(cid, 0) + len(times)
                 lo, hi = min(times), max(times)
+                block = np.empty((len(times), 3), dtype=np.int64)
+                block[:, 0] = ci.chunk_start_offset
+                block[:, 1:] = np.array(record.records, dtype=np.uint64).astype(np.int64)[:, ::-1]
+                fi.times.setdefault(cid, []).append(block)
                 fi.first_ns[cid] = min(fi.first_ns.get(cid, lo), lo)
                 fi.last_ns[cid] = max(fi.last_ns.get(cid, hi), hi)
     except Exception:  # a broken index: fall back to a sequential scan
@@ -269,6 +288,7 @@ def _records(f: Any) -> Iterator[Any]:
 def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
     fi = _FileIndex(path, indexed=False)
     last_time = -1
+    seen: dict[int, array[int]] = {}
     try:
         for record in _records(f):
             if isinstance(record, Schema):
@@ -280,6 +300,7 @@ def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
                 if cid not in fi.channels:
                     raise McapError(f"message on channel {cid} before its Channel record")
                 t = record.log_time
+                seen.setdefault(cid, array("q")).append(t)
                 fi.counts[cid] = fi.counts.get(cid, 0) + 1
                 fi.first_ns[cid] = min(fi.first_ns.get(cid, t), t)
                 fi.last_ns[cid] = max(fi.last_ns.get(cid, t), t)
@@ -292,6 +313,11 @@ def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
     except Exception as err:  # any damage ends the readable part of the file
         fi.damaged = f"{err.__class__.__name__}: {err}".rstrip(": ")
         logger.debug("%s: sequential read stopped: %s", path, err)
+    for cid, stamps in seen.items():
+        block = np.zeros((len(stamps), 3), dtype=np.int64)
+        block[:, 1] = np.arange(len(stamps))
+        block[:, 2] = np.frombuffer(stamps, dtype=np.int64)
+        fi.times[cid] = [block]
     return fi
 
 

@@ -32,6 +32,7 @@ from mfmap.ingest.decode import (
     stamp_ns_of,
     transform_matrix,
 )
+from mfmap.ingest.timecheck import LogClock, StampGuard, series_order
 from mfmap.types import (
     ROLE_BY_TYPE,
     Cloud,
@@ -64,6 +65,8 @@ _Stamped = TypeVar("_Stamped", Record, Cloud, Scan2D)
 
 
 _SMALL_ROLES = (Role.BARO, Role.IMU, Role.ODOM, Role.TF_STATIC)
+# Streams whose clock the time check follows (tf_static's messages hold whenever they came).
+_TIMED_ROLES = (Role.LIDAR, Role.SCAN2D, Role.BARO, Role.IMU, Role.ODOM)
 
 
 @dataclass
@@ -165,10 +168,33 @@ def _open_backend(path: Path) -> Backend:
             from mfmap.ingest.ros1_recover import Ros1RecoveryBackend
 
             return Ros1RecoveryBackend(path, str(err).split(": ", 2)[-1])
-    if path.suffix == ".db3" or path.name == "metadata.yaml":
+    if path.name == "metadata.yaml":
         return _open_backend(path.parent)
+    if path.suffix == ".db3":
+        return _open_db3(path)
     kind = {".mcap": "an MCAP file", ".bag": "a ROS 1 bag"}.get(path.suffix, "a known log format")
     raise LogError(f"not {kind} (unrecognised content at the start of the file)", path)
+
+
+def _open_db3(path: Path) -> Backend:
+    """A .db3 file named on its own: its bag when the metadata.yaml beside it lists it, else
+    that file alone (never another log that happens to lie in the same folder)."""
+    from mfmap.ingest.sqlite_recover import Ros2SqliteRecoveryBackend
+
+    meta = path.parent / "metadata.yaml"
+    if meta.is_file() and path.name in _metadata_files(meta):
+        return _open_backend(path.parent)
+    return Ros2SqliteRecoveryBackend(path, [path], None,
+                                     "a .db3 file on its own: no metadata.yaml lists it")
+
+
+def _metadata_files(meta: Path) -> list[str]:
+    """The file names metadata.yaml lists (also for storage `_ros2_metadata` does not open)."""
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        return [Path(str(p)).name for p in info.get("relative_file_paths") or []]
+    except Exception:
+        return []
 
 
 def _open_ros2_bag(path: Path) -> Backend:
@@ -202,8 +228,20 @@ def _ros2_metadata(meta: Path) -> tuple[str, list[str] | None]:
         info = doc["rosbag2_bagfile_information"]
     except Exception as err:
         raise LogError(f"not a ROS 2 bag metadata file ({err.__class__.__name__})", meta) from err
-    for entry in info.get("topics_with_message_count") or []:
-        topic = entry.get("topic_metadata", {})
+    if not isinstance(info, dict):
+        raise LogError("not a ROS 2 bag metadata file (rosbag2_bagfile_information is not a "
+                       "mapping)", meta)
+    entries = info.get("topics_with_message_count") or []
+    paths = info.get("relative_file_paths") or []
+    for key, value in (("topics_with_message_count", entries), ("relative_file_paths", paths)):
+        if not isinstance(value, list):
+            raise LogError(f"not a ROS 2 bag metadata file ({key} is not a list: {value!r:.40})",
+                           meta)
+    for entry in entries:
+        topic = entry.get("topic_metadata", {}) if isinstance(entry, dict) else None
+        if not isinstance(topic, dict):
+            raise LogError("not a ROS 2 bag metadata file (an entry of topics_with_message_count "
+                           f"without topic_metadata: {entry!r:.40})", meta)
         fmt = topic.get("serialization_format", "cdr")
         if fmt != "cdr":
             raise LogError(
@@ -215,10 +253,7 @@ def _ros2_metadata(meta: Path) -> tuple[str, list[str] | None]:
     if storage not in ("mcap", "sqlite3"):
         raise LogError(f"unknown storage '{storage}' (expected sqlite3 or mcap)", meta)
     # Early rosbag2 versions wrote the bag folder into the "relative" paths: keep the name only.
-    files = [
-        str(p) if (meta.parent / str(p)).is_file() else Path(str(p)).name
-        for p in info.get("relative_file_paths") or []
-    ]
+    files = [str(p) if (meta.parent / str(p)).is_file() else Path(str(p)).name for p in paths]
     if info.get("compression_mode") or not files:
         return storage, None
     missing = [f for f in files if not (meta.parent / f).is_file()]
@@ -288,22 +323,36 @@ class LogSource:
         )
         self.warnings: list[str] = [*backend.warnings, *notes]
         by_topic = {topic: role for role, topic in self.roles.items()}
+        self._clock = LogClock(getattr(backend, "log_times", lambda _topic: None),
+                               [t for r, t in self.roles.items() if r in _TIMED_ROLES],
+                               config.max_gap_s, str(path))
+        self.warnings += self._clock.warnings
+        kept = self._clock.kept
         self.topics: list[TopicInfo] = [
             TopicInfo(
                 name=t.name,
                 msgtype=t.msgtype,
-                count=t.count,
-                first_ns=t.first_ns,
-                last_ns=t.last_ns,
+                count=kept[t.name][2] if t.name in kept else t.count,
+                first_ns=kept[t.name][0] if kept.get(t.name, (0, 0, 0))[2] else
+                (None if t.name in kept else t.first_ns),
+                last_ns=kept[t.name][1] if kept.get(t.name, (0, 0, 0))[2] else
+                (None if t.name in kept else t.last_ns),
                 role=by_topic.get(t.name),
                 candidate_for=ROLE_BY_TYPE.get(t.msgtype),
             )
             for t in sorted(raw.values(), key=lambda t: t.name)
         ]
-        firsts = [t.first_ns for t in self.topics if t.first_ns is not None]
-        lasts = [t.last_ns for t in self.topics if t.last_ns is not None]
-        self.start_ns: int = min(firsts) if firsts else 0
-        self.end_ns: int = max(lasts) if lasts else 0
+        self._counts = {t.name: t.count for t in self.topics}
+        spans = [(t.first_ns, t.last_ns) for t in self.topics
+                 if t.first_ns is not None and t.last_ns is not None]
+        if self._clock.span is not None:
+            # Topics the check does not follow count only where they agree with the log's span.
+            lo = self._clock.span[0] - self._clock.max_gap_ns
+            hi = self._clock.span[1] + self._clock.max_gap_ns
+            spans = [(a, b) for a, b in spans if a >= lo and b <= hi] or spans
+        self.start_ns: int = min(a for a, _ in spans) if spans else 0
+        self.end_ns: int = max(b for _, b in spans) if spans else 0
+        self._guards: dict[str, StampGuard] = {}
         self._extrinsics: Extrinsics | None = None
         self._small: dict[Role, _Rows] | None = None
 
@@ -322,6 +371,11 @@ class LogSource:
 
     def close(self) -> None:
         self._backend.close()
+
+    def _iter_raw(self, topics: list[str], start_ns: int | None, end_ns: int | None
+                  ) -> Iterator[RawMessage]:
+        """The backend's messages less those the time check dropped."""
+        return self._clock.filter(self._backend.iter_raw(topics, start_ns, end_ns))
 
     def _warn(self, text: str) -> None:
         # Reading a stream twice must not say the same thing twice.
@@ -349,7 +403,7 @@ class LogSource:
     def count(self, role: Role | str) -> int:
         """Message count of the topic chosen for a role (0 if none)."""
         topic = self.topic_of(role)
-        return self._backend.topics[topic].count if topic is not None else 0
+        return self._counts.get(topic, 0) if topic is not None else 0
 
     def _require(self, role: Role, what: str) -> str:
         topic = self.roles.get(role)
@@ -390,7 +444,7 @@ class LogSource:
         lo = None if start_ns is None else start_ns - margin
         hi = None if end_ns is None else end_ns + margin
         backend = self._backend
-        for raw in backend.iter_raw([topic], lo, hi):
+        for raw in self._iter_raw([topic], lo, hi):
             msg = parse(raw)
             stamp = stamp_ns_of(msg, raw.log_time_ns)
             if (start_ns is not None and stamp < start_ns) or (end_ns is not None and stamp > end_ns):
@@ -415,7 +469,7 @@ class LogSource:
         topic = self.topic_of(role_or_topic)
         if topic is None:
             return iter(())
-        return self._backend.iter_raw([topic], start_ns, end_ns)
+        return self._iter_raw([topic], start_ns, end_ns)
 
     def clouds(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Cloud]:
         """Lidar scans in stamp order, decoded one at a time (never all in memory).
@@ -435,16 +489,54 @@ class LogSource:
             return backend.deserialize(raw)
 
         # Decode each scan while its bytes are still in cache, then restore stamp order.
+        guard = self._guard(topic)
+        records = guard.by_offset(self._records(topic, start_ns, end_ns, parse),
+                                  lambda r: r.stamp_ns, lambda r: r.log_time_ns)
         clouds = (
             decode_pointcloud2(rec.msg, rec.stamp_ns, where, max_bytes, self.config.drop_zero_points)
-            for rec in self._records(topic, start_ns, end_ns, parse)
+            for rec in records
         )
-        return self._reorder(clouds)
+        return self._guarded(topic, guard.forwards(self._reorder(clouds), lambda c: c.stamp_ns))
 
     def scans2d(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Scan2D]:
         """2D laser scans in stamp order as points (MissingDataError at the call if none)."""
         topic = self._require(Role.SCAN2D, "2D laser scanner")
-        return (decode_laserscan(r.msg, r.stamp_ns) for r in self.messages(topic, start_ns, end_ns))
+        guard = self._guard(topic)
+        records = guard.by_offset(self._records(topic, start_ns, end_ns, self._backend.deserialize),
+                                  lambda r: r.stamp_ns, lambda r: r.log_time_ns)
+        scans = guard.forwards(self._reorder(records), lambda r: r.stamp_ns)
+        return self._guarded(topic, (decode_laserscan(r.msg, r.stamp_ns) for r in scans))
+
+    def _guard(self, topic: str) -> StampGuard:
+        guard = self._guards.get(topic)
+        if guard is None:
+            guard = self._guards[topic] = StampGuard(int(self.config.max_gap_s * 1e9))
+        return guard
+
+    def _guarded(self, topic: str, items: Iterator[_Stamped]) -> Iterator[_Stamped]:
+        """`items`, and once they are read (or abandoned) the guard's count in the warnings."""
+        try:
+            yield from items
+        finally:
+            self._note_guard(topic)
+
+    def _note_guard(self, topic: str) -> None:
+        where = f"{self.path} topic {topic}"
+        text = self._guards[topic].describe(where)
+        if text is None:
+            return
+        # One line per topic, its counts growing as more of the stream is read.
+        self.warnings[:] = [w for w in self.warnings if not w.startswith(f"{where}: dropped ")]
+        self.warnings.append(text)
+
+    def stream_warnings(self) -> list[str]:
+        """What reading the streams found and dropped (for a worker to hand back)."""
+        out = []
+        for topic, guard in self._guards.items():
+            text = guard.describe(f"{self.path} topic {topic}")
+            if text is not None:
+                out.append(text)
+        return out
 
     # ----- small series ----------------------------------------------------------------------
 
@@ -460,7 +552,7 @@ class LogSource:
         topics = {self.roles[r]: r for r in _SMALL_ROLES if r in self.roles}
         out: dict[Role, _Rows] = {role: _Rows() for role in topics.values()}
         direct: dict[str, bool] = {}  # topic -> the direct parser agreed on its first message
-        for raw in self._backend.iter_raw(list(topics), None, None):
+        for raw in self._iter_raw(list(topics), None, None):
             role = topics[raw.topic]
             rows = out[role]
             if rows.error is not None:
@@ -518,10 +610,15 @@ class LogSource:
             raise MissingDataError(f"no barometer messages on {topic}", self.path)
         stamps = np.array(rows.stamps, dtype=np.int64)
         values = np.array(rows.values, dtype=np.float64).reshape(-1)
+        order = self._series_order(topic, stamps)
+        stamps, values = stamps[order], values[order]
         finite = np.isfinite(values)
         if not finite.all():
             self._warn(f"{topic}: dropped {int((~finite).sum())} non-finite pressure readings")
             stamps, values = stamps[finite], values[finite]
+        if stamps.shape[0] == 0:
+            raise DecodeError(f"every barometer reading is NaN or infinite ({len(rows.stamps)} "
+                              "messages): the sensor gave no pressure", f"{self.path} topic {topic}")
         unit = self._pressure_unit(values, topic)
         if unit.to_pa != 1.0:
             values = values * unit.to_pa
@@ -529,8 +626,19 @@ class LogSource:
                 f"{topic}: pressure published in {unit.name} (median {np.median(values) / unit.to_pa:.2f}),"
                 f" not Pa as sensor_msgs/FluidPressure specifies; converted to Pa"
             )
-        order = np.argsort(stamps, kind="stable")
-        return PressureSeries(stamp_ns=stamps[order], pressure_pa=values[order], frame_id=rows.frame)
+        return PressureSeries(stamp_ns=stamps, pressure_pa=values, frame_id=rows.frame)
+
+    def _series_order(self, topic: str, stamps: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+        """Indices that sort a small stream by header stamp, its inconsistent stamps and
+        repeated ones left out (with a warning)."""
+        order, check, repeats = series_order(stamps, int(self.config.max_gap_s * 1e9))
+        where = f"{self.path} topic {topic}"
+        if check.dropped:
+            self._warn(check.describe(f"{where} (header stamps)", int(stamps.min()),
+                                      self.config.max_gap_s))
+        if repeats:
+            self._warn(f"{where}: dropped {repeats} messages stamped like the one before them")
+        return order
 
     def _pressure_unit(self, values: np.ndarray[Any, Any], topic: str) -> PressureUnit:
         fixed = {"Pa": 1.0, "hPa": 100.0, "kPa": 1000.0}
@@ -552,7 +660,7 @@ class LogSource:
             return None
         stamps = np.array(rows.stamps, dtype=np.int64)
         v = np.array(rows.values, dtype=np.float64)
-        order = np.argsort(stamps, kind="stable")
+        order = self._series_order(self.roles[Role.IMU], stamps)
         v = v[order]
         quat = v[:, 6:10].copy()
         # orientation_covariance[0] == -1 means "no orientation estimate" (sensor_msgs/Imu).
@@ -571,7 +679,7 @@ class LogSource:
         if rows is None or not rows.stamps:
             return None
         stamps = np.array(rows.stamps, dtype=np.int64)
-        order = np.argsort(stamps, kind="stable")
+        order = self._series_order(self.roles[Role.ODOM], stamps)
         v = np.array(rows.values, dtype=np.float64)[order]
         return OdomSeries(
             stamp_ns=stamps[order],
@@ -639,7 +747,7 @@ class LogSource:
         if role in _SMALL_ROLES:
             rows = self._small_streams().get(role)
             return rows.frame if rows is not None and rows.stamps else None
-        for raw in self._backend.iter_raw([topic], None, None):
+        for raw in self._iter_raw([topic], None, None):
             msg = self._backend.deserialize(raw)
             header = getattr(msg, "header", None)
             return str(header.frame_id) if header is not None else None
@@ -649,12 +757,33 @@ class LogSource:
 def open_log(path: Path | str, config: IngestConfig | None = None) -> LogSource:
     """Open a log: a `.mcap` file, a ROS 1 `.bag`, a ROS 2 bag folder or a folder of `.mcap`."""
     path = Path(path)
+    config = config or IngestConfig()
     backend = _open_backend(path)
     try:
-        return LogSource(path, backend, config or IngestConfig())
+        _check_one_recording(backend, path, config.max_gap_s)
+        return LogSource(path, backend, config)
     except BaseException:
         backend.close()
         raise
+
+
+def _check_one_recording(backend: Backend, path: Path, max_gap_s: float) -> None:
+    """Several .mcap files are one log only when they follow on from (or overlap) each other:
+    two unrelated recordings in one folder must not become one log years long."""
+    spans = []
+    for fi in getattr(backend, "files", []):
+        if fi.first_ns:
+            spans.append((min(fi.first_ns.values()), max(fi.last_ns.values()), fi.path.name))
+    spans.sort()
+    end, last_name = None, ""
+    for first, last, name in spans:
+        if end is not None and first - end > max_gap_s * 1e9:
+            raise LogError(
+                f"holds .mcap files of different recordings: {name} starts "
+                f"{(first - end) / 1e9:.0f} s after {last_name} ends (more than ingest.max_gap_s, "
+                f"{max_gap_s:g} s); build each recording on its own", path)
+        if end is None or last > end:
+            end, last_name = last, name
 
 
 @dataclass
