@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class IngestConfig(BaseModel):
     """Which topics play which role; by default chosen by message type."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     topics: dict[str, str] = Field(
         default_factory=dict,
