@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
     from mfmap.ingest.source import LogSource
+    from mfmap.mapping.config import MappingConfig
     from mfmap.types import MappingResult
 
 logger = logging.getLogger(__name__)
@@ -120,6 +121,7 @@ def build(
             ingest_at = len(warnings)  # the log's warnings go here, once every stream is read
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
+            check_lidar_density(src, cfg.mapping)
             pool = None
             if max(cfg.mapping.workers, cfg.export.workers) > 1:
                 # With several floors, mapping (runs between rides) and the maps (floor groups)
@@ -282,6 +284,37 @@ def segment_floors(
     elif imu is not None and len(imu) > 1:
         motion = motion_from_imu(imu, cfg.floors)
     return pressure, segment_pressure(pressure, motion, cfg.floors)
+
+
+def check_lidar_density(src: LogSource, cfg: MappingConfig, scans: int = 20) -> None:
+    """Refuse a lidar whose scans hold too few usable points for scan registration (a radar's
+    cloud, or every return NaN), before any work: from the median of its first `scans` scans.
+
+    A sparse radar once ran through mapping to a trajectory that flew off and a grid too big to
+    allocate; an all-NaN lidar to an empty map.ply and no grids.
+    """
+    planar = Role.LIDAR not in src.roles
+    need = cfg.min_beams_per_scan if planar else cfg.min_points_per_scan
+    if need <= 0:
+        return
+    counts: list[int] = []
+    for _stamp, _frame, xyz, _t in _scans(src, planar):
+        rng = np.linalg.norm(xyz, axis=1)
+        counts.append(int(np.count_nonzero((rng > cfg.min_range_m) & (rng < cfg.max_range_m))))
+        if len(counts) >= scans:
+            break
+    if not counts:
+        return  # no scan at all: the mapping stage says so
+    median = float(np.median(counts))
+    if median < need:
+        topic = src.roles.get(Role.SCAN2D if planar else Role.LIDAR)
+        what = "returns" if planar else "points"
+        raise MissingDataError(
+            f"too few points per scan for lidar odometry: the first {len(counts)} scans of "
+            f"{topic} hold a median of {median:.0f} {what} between {cfg.min_range_m:g} and "
+            f"{cfg.max_range_m:g} m, at least {need} are needed (a radar, or a sensor whose "
+            f"returns are all NaN?); mapping.{'min_beams_per_scan' if planar else 'min_points_per_scan'} "
+            "sets the limit", src.path)
 
 
 def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float) -> str | None:
@@ -774,10 +807,20 @@ def render_summary(result: BuildResult) -> RenderableType:
     lines = Text(
         f"built {result.log.name} ({result.log_duration_s:.0f} s of log) in {result.elapsed_s:.1f} s: "
         f"{result.realtime_factor:.1f}x real time ({timing})\noutputs: {result.out}/ "
-        f"(map.ply, trajectory.tum, floors.json, floors/<id>/grid.pgm|yaml|png, floors/index.yaml, "
-        f"map.mcap, building.yaml, report.html)"
+        f"({', '.join(_outputs(result.files))})"
     )
     return Group(floors, transitions, factors, lines)
+
+
+def _outputs(files: Sequence[str]) -> list[str]:
+    """The outputs a build wrote, the floors' files once for all floors."""
+    top = [f for f in files if "/" not in f and not f.startswith(".")]
+    per_floor = sorted({f.split("/", 2)[2] for f in files if f.startswith("floors/") and f.count("/") == 2})
+    grids = [f.removeprefix("grid.") for f in per_floor if f.startswith("grid.")]
+    named = [f"floors/<id>/grid.{'|'.join(grids)}"] if grids else []
+    named += [f"floors/<id>/{f}" for f in per_floor if not f.startswith("grid.")]
+    named += [f for f in files if f.startswith("floors/") and f.count("/") == 1]  # floors/index.yaml
+    return top + named
 
 
 __all__ = ["BuildResult", "accumulate", "build", "optimise", "render_summary", "segment_floors"]

@@ -257,7 +257,9 @@ def decode_with_layout(
     if not bool(keep.all()):
         # Gathered as opaque bytes: np.take on a structured dtype copies field by field.
         sel = np.take(recs.view(packed_bytes), np.flatnonzero(keep)).view(layout.span)
-    if "xyz" in names:
+    if sel.shape[0] == 0:
+        xyz = np.zeros((0, 3), np.float32)  # every return NaN: no bytes to view
+    elif "xyz" in names:
         # Copied as opaque 12-byte items, then viewed as floats: numpy copies a strided (N, 3)
         # float array element by element, several times slower.
         xyz_type, xyz_offset = layout.span.fields["xyz"][:2]  # type: ignore[index]

@@ -26,6 +26,15 @@ class MappingConfig(BaseModel):
     keyframe_voxel_size_m: float = Field(0.1, ge=0.01, le=5.0, description="voxel of the cloud kept per keyframe")
     min_range_m: float = Field(0.4, ge=0.0, le=100.0, description="drop returns closer than this (robot body)")
     max_range_m: float = Field(40.0, gt=0.0, le=1000.0, description="drop returns farther than this")
+    min_points_per_scan: int = Field(
+        300, ge=0,
+        description="a 3D lidar whose scans hold fewer points than this within min_range_m - "
+        "max_range_m (the median of its first scans) is refused: scan registration needs "
+        "structure, which a radar's or a very sparse sensor's few returns do not give (0: try)",
+    )
+    min_beams_per_scan: int = Field(
+        30, ge=0, description="the same for a 2D laser scanner (LaserScan), in returns per scan",
+    )
     scan_stride: int = Field(
         3, ge=1,
         description="register every n-th 3D scan; the others get a pose from the motion prior",
