@@ -8,6 +8,7 @@ order, padding, byte order or row padding, so no Python code runs per point.
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -310,11 +311,15 @@ def _time_offsets_ns(
     return np.round(v64 * 1e9).astype(np.int64)
 
 
-def decode_laserscan(msg: Any, stamp_ns: int) -> Scan2D:
+def decode_laserscan(msg: Any, stamp_ns: int, where: str = "") -> Scan2D:
     """sensor_msgs/LaserScan -> 2D points; NaN, inf and out-of-range readings dropped."""
     ranges = np.asarray(msg.ranges, dtype=np.float32)
     i = np.arange(ranges.shape[0])
-    angles = float(msg.angle_min) + i * float(msg.angle_increment)
+    angle_min, increment = float(msg.angle_min), float(msg.angle_increment)
+    if not (math.isfinite(angle_min) and math.isfinite(increment)):
+        raise DecodeError(f"LaserScan with angle_min {angle_min} and angle_increment {increment}: "
+                          "no bearing for its ranges", where or None)
+    angles = angle_min + i * increment
     with np.errstate(invalid="ignore"):
         keep = (
             np.isfinite(ranges)
@@ -325,7 +330,7 @@ def decode_laserscan(msg: Any, stamp_ns: int) -> Scan2D:
     a = angles[keep]
     xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1).astype(np.float32)
     t_offset = None
-    if float(msg.time_increment) > 0:
+    if 0 < float(msg.time_increment) < 1.0:  # a sweep of seconds is no per-beam time
         t_offset = np.round(i[keep] * float(msg.time_increment) * 1e9).astype(np.int64)
     return Scan2D(stamp_ns=stamp_ns, frame_id=str(msg.header.frame_id), xy=xy, t_offset_ns=t_offset)
 

@@ -505,7 +505,8 @@ class LogSource:
         records = guard.by_offset(self._records(topic, start_ns, end_ns, self._backend.deserialize),
                                   lambda r: r.stamp_ns, lambda r: r.log_time_ns)
         scans = guard.forwards(self._reorder(records), lambda r: r.stamp_ns)
-        return self._guarded(topic, (decode_laserscan(r.msg, r.stamp_ns) for r in scans))
+        where = f"{self.path} topic {topic}"
+        return self._guarded(topic, (decode_laserscan(r.msg, r.stamp_ns, where) for r in scans))
 
     def _guard(self, topic: str) -> StampGuard:
         guard = self._guards.get(topic)
