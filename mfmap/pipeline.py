@@ -22,7 +22,7 @@ import numpy as np
 
 from mfmap.atomic import disk_error, is_disk_error
 from mfmap.config import MfmapConfig, dump_config
-from mfmap.errors import MissingDataError
+from mfmap.errors import MissingDataError, OutputError
 from mfmap.mapping.geometry import (
     deskew,
     gyro_bias,
@@ -228,6 +228,13 @@ def build(
         run.discard()
         if is_disk_error(err):
             raise disk_error(err, out) from err
+        raise
+    except OutputError as err:
+        run.discard()
+        if err.path is not None and partial in err.path.parents:
+            # The partial folder is gone: the user knows the output folder by its own name.
+            name = err.path.relative_to(partial)
+            raise OutputError(f"{err.message} (writing {name}; nothing was left behind)", out) from err
         raise
     except BaseException:
         run.discard()

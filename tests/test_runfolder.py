@@ -3,17 +3,21 @@ replaced only when mfmap wrote it; what killed builds leave is cleaned; a full d
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from mfmap import pipeline
 from mfmap.config import MfmapConfig
 from mfmap.errors import OutputError
+from mfmap.progress import NullProgress
 from mfmap.runfolder import MARKER, OWNER, RunFolder, check_output, clean_stale
 from tests.ingest import ingest_logwriter as lw
 
@@ -191,5 +195,43 @@ def test_a_disk_too_small_is_refused_before_the_build(tmp_path: Path) -> None:
         with pytest.raises(OutputError, match=r"only 2 MB free on its disk"):
             pipeline.build(log, disk / "out", MfmapConfig())
         assert list(disk.iterdir()) == []
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+class _FillDiskAtExport:
+    """A progress that fills `disk` when the build starts writing its outputs."""
+
+    def __init__(self, disk: Path) -> None:
+        self.disk = disk
+
+    @contextlib.contextmanager
+    def stage(self, name: str, total: float | None = None) -> Iterator[Any]:
+        if name == "export":
+            # Unbuffered, so closing the file has nothing left to write.
+            with (self.disk / "filler").open("wb", buffering=0) as f, contextlib.suppress(OSError):
+                while True:
+                    f.write(b"\0" * (1 << 20))
+        with NullProgress().stage(name, total) as bar:
+            yield bar
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or shutil.which("mount") is None,
+                    reason="mounts a small tmpfs, which needs root")
+def test_a_disk_that_fills_during_the_build_is_one_line(tmp_path: Path) -> None:
+    """ENOSPC while the outputs are written: one OutputError naming the output folder, the
+    partial folder removed, the user's files untouched."""
+    disk = tmp_path / "disk"
+    _mount_tmpfs(disk, "80m")
+    try:
+        log = lw.write_log(tmp_path / "logs", "mcap-ros2")
+        (disk / "keep.txt").write_text("mine")
+        cfg = MfmapConfig.model_validate({"mapping": {"min_points_per_scan": 0, "workers": 1},
+                                          "export": {"workers": 1}})
+        with pytest.raises(OutputError, match=r"out: no space left on the device while writing; "
+                                              r"free some space and run again \(writing "):
+            pipeline.build(log, disk / "out", cfg, progress=_FillDiskAtExport(disk))
+        assert sorted(p.name for p in disk.iterdir()) == ["filler", "keep.txt"]
+        assert (disk / "keep.txt").read_text() == "mine"
     finally:
         subprocess.run(["umount", str(disk)], check=True)

@@ -236,3 +236,27 @@ def test_floors_with_a_clock_set_back_warns_how_many_it_dropped(tiny_baro: Path,
     assert floors["floors"][1]["elevation_m"] == pytest.approx(clean["floors"][1]["elevation_m"], abs=0.1)
     warning = " ".join(result.stderr.split())
     assert "1 step(s) back in time); dropped 250 of 2150 messages" in warning, warning
+
+
+def test_a_clock_set_back_a_little_gives_strictly_increasing_series(tmp_path: Path) -> None:
+    """The clock set back 0.2 s halfway (below the jitter the check leaves alone): the repeated
+    stamps (the IMU's and odometry's grids meet again) are kept once, so the interpolators
+    downstream get strictly increasing times (once 'Times must be in strictly increasing order'
+    from a worker)."""
+    back = 200_000_000
+
+    def edit(store: Any, items: list[lw.Item]) -> Iterable[lw.Item]:
+        for name, msgtype, t, msg in items:
+            if name in ("/imu/data", "/odom") and t >= lw.T0_NS + 500_000_000:
+                t -= back
+                msg = lw.restamp(store, msg, t)
+            yield name, msgtype, t, msg
+
+    path = lw.write_log(tmp_path, "mcap-ros2", edit)
+    with open_log(path) as src:
+        imu, odom = src.imu(), src.odometry()
+        assert imu is not None and odom is not None
+        for series in (imu, odom):
+            assert np.all(np.diff(series.stamp_ns) > 0)
+        assert len(imu) == lw.IMU_N - 20 and len(odom) == lw.ODOM_N - 4
+        assert sum("stamped like the one before them" in w for w in src.warnings) == 2
