@@ -327,21 +327,15 @@ class LogSource:
                                [t for r, t in self.roles.items() if r in _TIMED_ROLES],
                                config.max_gap_s, str(path))
         self.warnings += self._clock.warnings
-        kept = self._clock.kept
-        self.topics: list[TopicInfo] = [
-            TopicInfo(
-                name=t.name,
-                msgtype=t.msgtype,
-                count=kept[t.name][2] if t.name in kept else t.count,
-                first_ns=kept[t.name][0] if kept.get(t.name, (0, 0, 0))[2] else
-                (None if t.name in kept else t.first_ns),
-                last_ns=kept[t.name][1] if kept.get(t.name, (0, 0, 0))[2] else
-                (None if t.name in kept else t.last_ns),
-                role=by_topic.get(t.name),
-                candidate_for=ROLE_BY_TYPE.get(t.msgtype),
-            )
-            for t in sorted(raw.values(), key=lambda t: t.name)
-        ]
+        self.topics: list[TopicInfo] = []
+        for t in sorted(raw.values(), key=lambda t: t.name):
+            count, first, last = t.count, t.first_ns, t.last_ns
+            if t.name in self._clock.kept:  # what the time check kept of it
+                first, last, count = self._clock.kept[t.name]
+            self.topics.append(TopicInfo(
+                name=t.name, msgtype=t.msgtype, count=count,
+                first_ns=first if count else None, last_ns=last if count else None,
+                role=by_topic.get(t.name), candidate_for=ROLE_BY_TYPE.get(t.msgtype)))
         self._counts = {t.name: t.count for t in self.topics}
         spans = [(t.first_ns, t.last_ns) for t in self.topics
                  if t.first_ns is not None and t.last_ns is not None]
