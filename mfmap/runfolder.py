@@ -36,8 +36,8 @@ _FLOOR_FILES = frozenset({"cloud.ply", "grid.pgm", "grid.yaml", "grid.png"})
 
 # Free space a build needs beyond its outputs' share of the log (report, grids, config).
 _MIN_FREE_BYTES = 64 * 1024 * 1024
-# Outputs measured against their logs: 3-6 % of the simulated logs' size (map.ply and the
-# per-floor clouds dominate); a quarter leaves room for denser clouds.
+# Outputs measured against their logs: 11 MB of tiny's 159 MB (7 %), 1.1 MB of tiny-2d's 9 MB
+# (12 %); map.ply and the floors' clouds dominate. A quarter leaves room for denser clouds.
 _OUTPUT_SHARE_OF_LOG = 0.25
 
 
