@@ -114,8 +114,6 @@ def log_span(spans: dict[str, tuple[int, int, int]], max_gap_ns: int) -> tuple[i
     return lo, hi
 
 
-
-
 # ----- a log's clock: which messages of which streams are kept ---------------------------------
 
 
