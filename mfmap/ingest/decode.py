@@ -250,9 +250,12 @@ def decode_with_layout(
         x, y, z = recs["x"], recs["y"], recs["z"]
     # One squared range per point, instead of reductions along the short axis of (N, 3):
     # NaN fails both comparisons, inf fails the second, an exact (0, 0, 0) the first.
-    r2 = x * x
-    r2 += y * y
-    r2 += z * z
+    # In floats whatever the fields' types (a driver may send integer coordinates, or mix them);
+    # a garbage coordinate squares to inf, which the test below drops.
+    with np.errstate(over="ignore", invalid="ignore"):
+        r2 = np.multiply(x, x, dtype=np.result_type(x.dtype, y.dtype, z.dtype, np.float32))
+        r2 += y * y
+        r2 += z * z
     keep = (r2 < np.inf) & (r2 > 0) if drop_zero else np.isfinite(r2)
     sel = recs
     if not bool(keep.all()):

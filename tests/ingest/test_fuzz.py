@@ -16,6 +16,7 @@ from typing import Any
 
 import ingest_logwriter as lw
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -284,3 +285,15 @@ def test_ros2_bags_cut_short_read_or_fail_in_one_line(fmt: str, data: st.DataObj
         raw = storage.read_bytes()
         storage.write_bytes(raw[: data.draw(st.integers(0, len(raw) - 1), label="cut")])
         _read_everything(bag)
+
+
+@pytest.mark.parametrize("x_type", [1, 2, 3, 4, 5, 6, 8])  # every integer type, and float64
+def test_a_cloud_with_x_of_another_type_than_y_and_z_decodes(x_type: int) -> None:
+    """Found by a deeper fuzzing run: an int8 x beside float32 y and z made the squared range's
+    sum an int8 and numpy refuse the cast."""
+    msg = lw.cloud_msg(STORE, 1, 1_700_000_000_000_000_000)
+    x = next(f for f in msg.fields if f.name == "x")
+    x.datatype = x_type
+    cloud = decode_pointcloud2(msg, 0, "fuzz", MAX_BYTES)
+    _valid_cloud(cloud, msg.height * msg.width)
+    assert cloud.xyz.shape[0] > 0
