@@ -287,8 +287,10 @@ class RunFolder:
                 old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=out.parent))
                 _mark(old, owner=True)
                 os.replace(out, old / out.name)
-            (partial / OWNER).unlink()
             os.replace(partial, out)
+            # Only now: a partial folder without its owner would look abandoned to a build
+            # starting beside this one.
+            (out / OWNER).unlink(missing_ok=True)
         except OSError as err:
             if old is not None and (old / out.name).exists() and not out.exists():
                 with contextlib.suppress(OSError):
