@@ -4,8 +4,9 @@ Formats as in DESIGN.md. Times are epoch seconds (the .tum and .csv carry all ni
 digits). Besides the shared schema, gt_floors.json has:
 - per transition: "connector" (0 = elevator, 1 = stairs), "height_change_m";
 - "sim": scenario, seed, start_ns (stamp of the first lidar scan = world-frame origin),
-  floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k,
-  baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
+  floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
+  column's virtual temperature at world z = 0), temperature_gradient_k_per_m, gravity_m_s2
+  (pressure at height h: mfmap.sim.atmosphere.AirColumn), baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
   door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible).
 gt_cloud.ply samples the static surfaces (closed landing doors included, the cabin not) with an
 int `floor` per point: the floor whose space holds the point (its floor surface, walls, furniture
@@ -23,7 +24,6 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.atomic import atomic_open, write_bytes_atomic
-from mfmap.baro import T0_K, pressure_from_height
 from mfmap.sim.building import (
     SHAFT_CENTER,
     STAIR_X0,
@@ -112,7 +112,7 @@ def floors_document(
                 "id": k,
                 "elevation_m": round(elev, 6),
                 # Pressure at the barometer's height on this floor, at the start's weather.
-                "pressure_pa": round(pressure_from_height(elev + BARO_MOUNT.xyz[2], baro.p0_pa, T0_K), 3),
+                "pressure_pa": round(baro.air.pressure_pa(elev + BARO_MOUNT.xyz[2], baro.p0_pa), 3),
                 "visits": [
                     [epoch_s(start_ns, t0), epoch_s(start_ns, t1)] for f, t0, t1 in traj.floor_visits if f == k
                 ],
@@ -145,7 +145,9 @@ def floors_document(
             "start_ns": start_ns,
             "floor_height_m": building.floor_height_m,
             "reference_pressure_pa": round(baro.p0_pa, 3),
-            "temperature_k": T0_K,
+            "temperature_k": baro.air.virtual_temperature_k,
+            "temperature_gradient_k_per_m": baro.air.gradient_k_per_m,
+            "gravity_m_s2": baro.air.gravity_m_s2,
             "baro_height_above_base_m": BARO_MOUNT.xyz[2],
             "drift_pa_per_h": baro.drift_sign * baro.spec.drift_pa_per_h,
             "pressure_transients": [

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.baro import T0_K, pressure_from_height
+from mfmap.sim.atmosphere import CALM_AIR, AirColumn
 from mfmap.sim.building import CABIN_HALF, SHAFT_CENTER, Building, Kind, cast_rays, kinds_of
 from mfmap.sim.trajectory import DT_S, RATE_HZ, FArr, Trajectory, rotation_matrices
 
@@ -311,10 +311,14 @@ class WheelOdometry:
 
 
 class Barometer:
-    """Hypsometric pressure at the sensor plus weather drift, transients, noise, quantisation."""
+    """Hydrostatic pressure at the sensor (the simulator's own air column) plus weather drift,
+    transients, noise, quantisation."""
 
-    def __init__(self, spec: BaroSpec, traj: Trajectory, p0_pa: float, seed: int) -> None:
+    def __init__(
+        self, spec: BaroSpec, traj: Trajectory, p0_pa: float, seed: int, air: AirColumn = CALM_AIR
+    ) -> None:
         self.spec = spec
+        self.air = air
         self.traj = traj
         self.p0_pa = p0_pa
         self.seed = seed
@@ -349,7 +353,7 @@ class Barometer:
 
     def samples(self, ticks: npt.NDArray[np.int64]) -> F64:
         t = ticks * DT_S
-        p = pressure_from_height(self.true_height(ticks), self.reference(t), T0_K)
+        p = self.air.pressure_pa(self.true_height(ticks), self.reference(t))
         p = p + self.rng.normal(0, self.spec.noise_pa, len(ticks))
         return np.round(p / self.spec.quantum_pa) * self.spec.quantum_pa
 

@@ -18,7 +18,7 @@ from simtest_helpers import (
     tf_static,
 )
 
-from mfmap.baro import height_from_pressure, pressure_from_height
+from mfmap.sim.atmosphere import AirColumn
 from mfmap.sim.groundtruth import read_ply
 
 SHAFT_XY = np.array([0.3, 2.35])
@@ -102,7 +102,8 @@ def test_pressure_follows_gt_height(tiny: Path) -> None:
     t_a, p_a = np.array(t), np.array(p)
     pos, rot = gt.at(t_a)
     h = pos[:, 2] + rot[:, 2, 2] * baro_z
-    expected = pressure_from_height(h, sim["reference_pressure_pa"], sim["temperature_k"])
+    air = AirColumn(sim["temperature_k"], sim["temperature_gradient_k_per_m"], sim["gravity_m_s2"])
+    expected = air.pressure_pa(h, sim["reference_pressure_pa"])
     resid = p_a - expected
     # Remove the slow weather drift (a line) and the known door/HVAC steps; what is left is noise.
     calm = np.ones(len(t_a), bool)
@@ -118,7 +119,7 @@ def test_pressure_follows_gt_height(tiny: Path) -> None:
     t0, t1 = tr["t_start"] - start_ns / 1e9, tr["t_end"] - start_ns / 1e9
     before = p_a[(t_a > t0 - 1.0) & (t_a < t0)].mean()
     after = p_a[(t_a > t1) & (t_a < t1 + 1.0)].mean()
-    dz = height_from_pressure(after, before)
+    dz = air.height_m(after, before)
     assert abs(dz - tr["height_change_m"]) < 0.25
 
 
