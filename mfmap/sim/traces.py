@@ -1,8 +1,9 @@
-"""Synthetic barometer traces with known floors, for the floors stage's tests and benchmarks.
+"""Barometer traces with known floors, for the floors stage's tests and benchmarks.
 
-Only the barometer (mfmap.sim writes whole logs): a height profile of stays, elevator rides and
-stair climbs, turned into pressure with mfmap.baro, plus white noise, quantisation, linear
-weather drift, door/HVAC steps and single-sample spikes.
+Only the barometer (`simulate` writes whole logs): a height profile of stays, elevator rides and
+stair climbs, turned into pressure with the simulator's own air column, plus white noise,
+quantisation, linear weather drift, door/HVAC steps and single-sample spikes; and a scenario's
+barometer exactly as `simulate` logs it, without rendering any lidar.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.baro import pressure_from_height
+from mfmap.sim.atmosphere import CALM_AIR
 from mfmap.types import OdomSeries, PressureSeries
 
 F64 = npt.NDArray[np.float64]
@@ -139,7 +140,7 @@ def synthetic_trace(
         truth.append(TruthTransition(leg.kind, t0, t1, cur_level, new_level, leg.height_change_m))
         cur_h, cur_level = new_h, new_level
 
-    pressure = pressure_from_height(height, start_pressure_pa)
+    pressure = CALM_AIR.pressure_pa(height, start_pressure_pa)
     pressure = pressure + drift_pa_per_h * t_s / 3600.0
     pressure = pressure + rng.normal(0.0, noise_pa, n)
     still = np.flatnonzero(level >= 0)
