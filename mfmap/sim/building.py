@@ -215,6 +215,27 @@ class Building:
         """The floor whose elevation is nearest to z (for ground-truth labels)."""
         return int(np.clip(round(z_m / self.floor_height_m) + self.start_floor, 0, self.n_floors - 1))
 
+    def floor_index_of_heights(self, z_m: F64) -> npt.NDArray[np.int64]:
+        """`floor_of_height` for an array of heights."""
+        elev = np.array([f.elevation_m for f in self.floors])
+        return np.argmin(np.abs(np.asarray(z_m)[:, None] - elev[None, :]), axis=1).astype(np.int64)
+
+    def storey_height(self, floor_id: int) -> float:
+        """From this floor's slab top to the next one's."""
+        return self.floor_height_m
+
+    @property
+    def shaft_center(self) -> tuple[float, float]:
+        return SHAFT_CENTER
+
+    @property
+    def cabin_half_m(self) -> float:
+        return CABIN_HALF
+
+    @property
+    def stair_rect(self) -> tuple[float, float, float, float]:
+        return (STAIR_X0, STAIR_X1, STAIR_Y0, STAIR_Y1)
+
     def floor_of_points(self, z_m: F64) -> npt.NDArray[np.int32]:
         """The floor whose space (its slab's top up to the next slab's underside) holds z."""
         e0 = self.floors[0].elevation_m

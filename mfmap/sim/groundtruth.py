@@ -7,7 +7,11 @@ digits). Besides the shared schema, gt_floors.json has:
   floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
   column's virtual temperature at world z = 0), temperature_gradient_k_per_m, gravity_m_s2
   (pressure at height h: mfmap.sim.atmosphere.AirColumn), baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
-  door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible).
+  door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible), world (the
+  building's air as drawn: mfmap.sim.world.World.document; floor_offsets_pa are each floor's
+  pressure relative to the shaft's air column), door_pulses [[t, dPa]].
+Each floor's pressure_pa is at the barometer's height on it, at the start's weather, with the
+floor's offset.
 gt_cloud.ply samples the static surfaces (closed landing doors included, the cabin not) with an
 int `floor` per point: the floor whose space holds the point (its floor surface, walls, furniture
 and its ceiling, i.e. the underside of the slab above).
@@ -104,6 +108,8 @@ def floors_document(
         {"id": 0, "kind": "elevator", "x": SHAFT_CENTER[0], "y": SHAFT_CENTER[1], "floors": all_floors},
         {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": all_floors},
     ]
+    world = baro.world
+    offsets = world.floor_offsets_pa if world is not None else [0.0] * building.n_floors
     floors = []
     for k in visited:
         elev = building.elevation(k)
@@ -112,7 +118,7 @@ def floors_document(
                 "id": k,
                 "elevation_m": round(elev, 6),
                 # Pressure at the barometer's height on this floor, at the start's weather.
-                "pressure_pa": round(baro.air.pressure_pa(elev + BARO_MOUNT.xyz[2], baro.p0_pa), 3),
+                "pressure_pa": round(baro.air.pressure_pa(elev + BARO_MOUNT.xyz[2], baro.p0_pa) + offsets[k], 3),
                 "visits": [
                     [epoch_s(start_ns, t0), epoch_s(start_ns, t1)] for f, t0, t1 in traj.floor_visits if f == k
                 ],
@@ -154,6 +160,10 @@ def floors_document(
                 [epoch_s(start_ns, t0), epoch_s(start_ns, t1), round(dp, 3)] for t0, t1, dp in baro.transients
             ],
             "door_open": [[epoch_s(start_ns, t0), epoch_s(start_ns, t1), f] for t0, t1, f in traj.door_open],
+            "world": None if world is None else world.document(building),
+            "door_pulses": []
+            if world is None
+            else [[epoch_s(start_ns, t0), round(dp, 3)] for t0, dp in world.door_pulses],
         },
     }
 

@@ -102,7 +102,7 @@ def plot_pressure(
 
     # The written samples come from a generator already consumed; draw a fresh, identically
     # seeded barometer so the plot shows exactly the logged values.
-    fresh = Barometer(baro.spec, traj, baro.p0_pa, _seed_of(baro), baro.air)
+    fresh = Barometer(baro.spec, traj, baro.p0_pa, _seed_of(baro), baro.world)
     step = RATE_HZ // baro.spec.rate_hz
     n = round(traj.duration_s) * baro.spec.rate_hz
     ticks = np.arange(n, dtype=np.int64) * step
@@ -112,8 +112,7 @@ def plot_pressure(
     floor = np.array([building.floor_of_height(z) for z in traj.xyz[ticks, 2]])
     fig, ax = plt.subplots(figsize=(11, 4.5))
     ax.plot(t, p, color="#1f77b4", linewidth=0.6, label="barometer (logged)")
-    ref = fresh.reference(t)
-    ax.plot(t, fresh.air.pressure_pa(fresh.true_height(ticks), ref), color="#ff7f0e", linewidth=1.0, label="noise-free")
+    ax.plot(t, fresh.clean(ticks), color="#ff7f0e", linewidth=1.0, label="noise-free")
     for t0, t1, _ in baro.transients:
         ax.axvspan(t0, t1, color="#ffbb78", alpha=0.4)
     ax.set_xlabel(f"time since start [s] (t0 = {start_ns / 1e9:.0f} epoch s)")

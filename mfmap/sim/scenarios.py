@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
 from mfmap.sim.trajectory import RouteBuilder
+from mfmap.sim.world import WorldSpec
 
 # Checkpoints of the manual-driving experiment in seeds/000 (Table I), world frame.
 P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
@@ -26,6 +27,9 @@ class ScenarioSpec:
     lidar: LidarSpec | None = field(default_factory=LidarSpec)
     laser: LaserSpec | None = None
     baro: BaroSpec = field(default_factory=BaroSpec)
+    # The building's air (stack effect, doors, cabin, weather, temperature); the default is calm,
+    # `world=WorldSpec.harsh()` makes it a real building's.
+    world: WorldSpec = field(default_factory=WorldSpec)
     v_max: float = 0.8
     gt_spacing_m: float = 0.05
 
@@ -149,6 +153,16 @@ SCENARIOS: dict[str, ScenarioSpec] = {
             3.5,
             _tiny,
             lidar=LidarSpec(beams=16, columns=512),
+        ),
+        ScenarioSpec(
+            "tiny-harsh",
+            "tiny in a real building's air: temperature 0-40 C, stack effect, doors, cabin lag, "
+            "weather, the barometer's temperature topic",
+            2,
+            3.5,
+            _tiny,
+            lidar=LidarSpec(beams=16, columns=512),
+            world=WorldSpec.harsh(),
         ),
         ScenarioSpec(
             "tiny-2d",
