@@ -4,7 +4,9 @@ Formats as in DESIGN.md. Times are epoch seconds (the .tum and .csv carry all ni
 digits). Besides the shared schema, gt_floors.json has:
 - per transition: "connector" (0 = elevator, 1 = stairs), "height_change_m";
 - "sim": scenario, seed, start_ns (stamp of the first lidar scan = world-frame origin),
-  floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
+  building (its name), floor_height_m (null when the storeys differ), storey_heights_m and
+  elevations_m of every floor (visited or not), stairwell (straight or switchback),
+  reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
   column's virtual temperature at world z = 0), temperature_gradient_k_per_m, gravity_m_s2
   (pressure at height h: mfmap.sim.atmosphere.AirColumn), baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
   door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible), world (the
@@ -28,14 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.atomic import atomic_open, write_bytes_atomic
-from mfmap.sim.building import (
-    SHAFT_CENTER,
-    STAIR_X0,
-    STAIR_X1,
-    STAIR_Y0,
-    STAIR_Y1,
-    Building,
-)
+from mfmap.sim.building import Building
 from mfmap.sim.sensors import BARO_MOUNT, Barometer
 from mfmap.sim.trajectory import Trajectory, quaternions
 
@@ -103,9 +98,11 @@ def floors_document(
 ) -> dict[str, Any]:
     visited = sorted({f for f, _, _ in traj.floor_visits})
     all_floors = list(range(building.n_floors))
-    stair_xy = ((STAIR_X0 + STAIR_X1) / 2, (STAIR_Y0 + STAIR_Y1) / 2)
+    sx0, sx1, sy0, sy1 = building.stair_rect
+    stair_xy = ((sx0 + sx1) / 2, (sy0 + sy1) / 2)
+    shaft_xy = building.shaft_center
     connectors = [
-        {"id": 0, "kind": "elevator", "x": SHAFT_CENTER[0], "y": SHAFT_CENTER[1], "floors": all_floors},
+        {"id": 0, "kind": "elevator", "x": shaft_xy[0], "y": shaft_xy[1], "floors": all_floors},
         {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": all_floors},
     ]
     world = baro.world
@@ -149,7 +146,11 @@ def floors_document(
             "scenario": spec.name,
             "seed": seed,
             "start_ns": start_ns,
-            "floor_height_m": building.floor_height_m,
+            "building": building.spec.name,
+            "floor_height_m": building.floor_height_m if building.uniform else None,
+            "storey_heights_m": list(building.storeys_m),
+            "elevations_m": [round(building.elevation(k), 6) for k in all_floors],
+            "stairwell": building.spec.stairwell.kind,
             "reference_pressure_pa": round(baro.p0_pa, 3),
             "temperature_k": baro.air.virtual_temperature_k,
             "temperature_gradient_k_per_m": baro.air.gradient_k_per_m,

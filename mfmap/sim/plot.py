@@ -70,10 +70,11 @@ def plot_floorplans(building: Building, traj: Trajectory, path: Path) -> Path:
             if c.floor == k:
                 ax.plot(c.x, c.y, "o", color="#2ca02c", markersize=7)
                 ax.annotate(c.label, (c.x, c.y), textcoords="offset points", xytext=(5, 5), fontsize=9)
-        ax.set_title(f"floor {k}: elevation {e:+.2f} m (slab {SLAB_M} m)")
+        ax.set_title(f"floor {k}: elevation {e:+.2f} m, storey {building.storey_height(k):.2f} m (slab {SLAB_M} m)")
         ax.set_aspect("equal")
-        ax.set_xlim(-5, 27)
-        ax.set_ylim(-17, 5)
+        fx0, fx1, fy0, fy1 = building.spec.footprint
+        ax.set_xlim(fx0 - 1, fx1 + 1)
+        ax.set_ylim(fy0 - 1, fy1 + 1)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.grid(alpha=0.2)

@@ -15,7 +15,7 @@ from mfmap.errors import MfmapError, OutputError
 from mfmap.progress import NullProgress, Progress
 from mfmap.sim import groundtruth
 from mfmap.sim.building import Building
-from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec
+from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec, building_for
 from mfmap.sim.sensors import (
     BARO_MOUNT,
     IMU_MOUNT,
@@ -123,7 +123,7 @@ def simulate(
     except OSError as err:
         raise OutputError(f"cannot create the output folder ({err.strerror})", out) from err
     reps = max(1, round(duration_scale))
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    building = building_for(spec, seed)
     traj = build_trajectory(spec, building, seed, reps)
     start_ns = start_stamp_ns(seed)
     duration_s = round(traj.duration_s)
@@ -159,7 +159,7 @@ def simulate(
         paths["cloud"],
         start_ns,
         float(duration_s),
-        spec.n_floors,
+        building.n_floors,
         counts,
         size,
         time.perf_counter() - t_wall,

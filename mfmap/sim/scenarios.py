@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from mfmap.sim.building import Building, BuildingSpec, office_block
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
 from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
@@ -32,6 +33,14 @@ class ScenarioSpec:
     world: WorldSpec = field(default_factory=WorldSpec)
     v_max: float = 0.8
     gt_spacing_m: float = 0.05
+    # The building for a seed; None: the office block with n_floors storeys of floor_height_m.
+    building: Callable[[int], BuildingSpec] | None = None
+
+
+def building_for(spec: ScenarioSpec, seed: int) -> Building:
+    """The scenario's building at this seed (its rooms and furniture are the seed's too)."""
+    plan = spec.building(seed) if spec.building is not None else office_block(spec.n_floors, spec.floor_height_m)
+    return Building(plan, spec.start_floor, seed)
 
 
 def checkpoint_tour(b: RouteBuilder, stop_s: float = 5.0) -> None:
@@ -141,6 +150,48 @@ def _long(b: RouteBuilder, reps: int) -> None:
         checkpoint_tour(b, 4.0)
 
 
+def _office_switchback(b: RouteBuilder, reps: int) -> None:
+    """A 5.5 m lobby under 3.5 m offices: up two storeys by the switch-back stairs without
+    stopping on the first floor, down by elevator with a stop on it, the top floor, then the
+    first floor by elevator (a stop on the way) and down the stairs to the lobby."""
+    pauses = {"landing_pause_s": (5.0, 30.0), "mid_flight_pause_s": (3.0, 12.0), "mid_flight_pause_share": 0.4}
+    to_stairs = (P2, (14.25, -1.5), (14.25, -11.0))
+    for _ in range(reps):
+        b.checkpoint("P1", 4.0)
+        b.drive(P2)
+        b.checkpoint("P2", 4.0)
+    b.drive(*to_stairs)
+    b.stairs(2, **pauses)  # type: ignore[arg-type]
+    for _ in range(reps):
+        b.drive((20.0, -11.0))
+        b.checkpoint("S1", 4.0)
+        b.drive((14.25, -11.0), (14.25, -1.5), P2)
+        b.checkpoint("P2", 4.0)
+        b.drive(P1)
+        b.checkpoint("P1", 4.0)
+    b.elevator(0, stops=(1,))
+    b.drive(P1)
+    b.checkpoint("P1", 3.0)
+    b.elevator(3)
+    for _ in range(reps):
+        b.drive(P1)
+        b.checkpoint("P1", 4.0)
+        b.drive(P2)
+        b.checkpoint("P2", 4.0)
+    b.elevator(1, stops=(2,))
+    for _ in range(reps):
+        b.drive(P1)
+        b.checkpoint("P1", 4.0)
+        b.drive(P2)
+        b.checkpoint("P2", 4.0)
+    b.drive(*to_stairs[1:])
+    b.stairs(0, **pauses)  # type: ignore[arg-type]
+    b.drive((14.25, -11.0), (14.25, -1.5), P2)
+    b.checkpoint("P2", 4.0)
+    b.drive(P1)
+    b.checkpoint("P1", 3.0)
+
+
 _DRIFT = BaroSpec(drift_pa_per_h=200.0, transient_floors=(0, 1, 2), transient_every_s=30.0)
 
 SCENARIOS: dict[str, ScenarioSpec] = {
@@ -211,6 +262,18 @@ SCENARIOS: dict[str, ScenarioSpec] = {
             3.5,
             _stairs,
             v_max=0.7,
+        ),
+        ScenarioSpec(
+            "office-switchback",
+            "the office block with a 5.5 m lobby under 3.5 m storeys and switch-back stairs: "
+            "landings, pauses, a floor passed through, elevator stops, in a harsh world, ~10 min",
+            4,
+            3.5,
+            _office_switchback,
+            world=WorldSpec.harsh(),
+            v_max=0.7,
+            lidar=LidarSpec(beams=16, columns=512),
+            building=lambda seed: office_block(4, 3.5, (5.5, 3.5, 3.5, 3.5), switchback=True),
         ),
         ScenarioSpec(
             "single-floor",

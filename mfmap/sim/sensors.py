@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.sim.atmosphere import CALM_AIR
-from mfmap.sim.building import CABIN_HALF, SHAFT_CENTER, Building, Kind, cast_rays, kinds_of
+from mfmap.sim.building import Building, Kind, cast_rays, kinds_of
 from mfmap.sim.trajectory import DT_S, RATE_HZ, FArr, Trajectory, rotation_matrices
 from mfmap.sim.world import World
 
@@ -112,12 +112,13 @@ class Scenes:
         cos = np.abs((n * dirs).sum(axis=1))
         cabin_wall = np.zeros(len(r), dtype=bool)
         xy = rays[:, :2].mean(axis=0)
-        inside = bool(np.all(np.abs(xy - np.array(SHAFT_CENTER)) < CABIN_HALF))
+        center = self.building.shaft_center
+        inside = bool(np.all(np.abs(xy - np.array(center)) < self.building.cabin_half_m))
         if open_floor is not None or inside:
             door_closed = open_floor is None
             local = rays.copy()
-            local[:, 0] -= SHAFT_CENTER[0]
-            local[:, 1] -= SHAFT_CENTER[1]
+            local[:, 0] -= center[0]
+            local[:, 1] -= center[1]
             local[:, 2] -= self.traj.cabin_z_at(t_s).astype(np.float32)
             rc, ids, nc = cast_rays(self.building.cabin_scene(door_closed), local)
             closer = rc < r

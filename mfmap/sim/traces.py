@@ -200,15 +200,14 @@ def sim_barometer(scenario: str, seed: int = 0, world: WorldSpec | None = None) 
     can cover every scenario. `world` replaces the scenario's (e.g. WorldSpec.harsh()).
     """
     from mfmap.sim import groundtruth
-    from mfmap.sim.building import Building
     from mfmap.sim.run import build_trajectory, make_barometer, start_stamp_ns
-    from mfmap.sim.scenarios import SCENARIOS
+    from mfmap.sim.scenarios import SCENARIOS, building_for
     from mfmap.sim.trajectory import DT_S, RATE_HZ
 
     spec = SCENARIOS[scenario]
     if world is not None:
         spec = dataclasses.replace(spec, world=world)
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    building = building_for(spec, seed)
     traj = build_trajectory(spec, building, seed, 1)
     start_ns = start_stamp_ns(seed)
     baro = make_barometer(spec, building, traj, seed)

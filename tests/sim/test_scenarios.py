@@ -13,14 +13,15 @@ import pytest
 
 from mfmap.errors import MfmapError
 from mfmap.sim import SCENARIOS, simulate
-from mfmap.sim.building import SHAFT_CENTER, STAIR_X0, STAIR_Y1, Building
+from mfmap.sim.building import Building, office_block
 from mfmap.sim.run import build_trajectory
+from mfmap.sim.scenarios import building_for
 from mfmap.sim.trajectory import DT_S
 
 
 def _route(name: str, seed: int = 0) -> tuple[Building, object]:
     spec = SCENARIOS[name]
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    building = building_for(spec, seed)
     return building, build_trajectory(spec, building, seed, 1)
 
 
@@ -44,19 +45,20 @@ def test_route_is_drivable(name: str) -> None:
     probe = xyz[::20].copy()
     probe[:, 2] += 0.6
     dist = building.scene(None).compute_distance(o3d.core.Tensor(probe.astype(np.float32))).numpy()
-    near_cabin = np.linalg.norm(probe[:, :2] - np.array(SHAFT_CENTER), axis=1) < 1.8
-    in_stairs = (probe[:, 0] > STAIR_X0) & (probe[:, 1] < STAIR_Y1)
+    near_cabin = np.linalg.norm(probe[:, :2] - np.array(building.shaft_center), axis=1) < 1.8
+    sx0, sx1, sy0, sy1 = building.stair_rect
+    in_stairs = (probe[:, 0] > sx0) & (probe[:, 0] < sx1) & (probe[:, 1] > sy0) & (probe[:, 1] < sy1)
     free = ~near_cabin & ~in_stairs
     assert dist[free].min() >= 0.35
 
 
 def test_buildings_for_many_seeds() -> None:
     for seed in range(40):
-        building = Building(3, 4.0, 0, seed)
+        building = Building(office_block(3, 4.0), 0, seed)
         counts = [len(f.boxes) for f in building.floors]
         assert all(c > 80 for c in counts)
     # Floors differ from each other (rooms, doors, furniture) but share the structure.
-    a, b = (set(f.boxes) for f in Building(2, 4.0, 0, 0).floors)
+    a, b = (set(f.boxes) for f in Building(office_block(2, 4.0), 0, 0).floors)
     shifted = {type(x)((x.lo[0], x.lo[1], x.lo[2] - 4.0), (x.hi[0], x.hi[1], x.hi[2] - 4.0), x.kind) for x in b}
     common = a & shifted
     assert len(common) >= 15 and len(a - shifted) > 20
@@ -120,8 +122,8 @@ def test_deterministic(tmp_path: Path) -> None:
     assert set(da) == {"log.mcap", "gt_trajectory.tum", "gt_points.csv", "gt_floors.json", "gt_cloud.ply"}
     assert da == db  # byte-identical log and ground truth
     # Another seed is another building (rooms, furniture) and another epoch.
-    boxes3 = [f.boxes for f in Building(2, 3.5, 0, 3).floors]
-    boxes4 = [f.boxes for f in Building(2, 3.5, 0, 4).floors]
+    boxes3 = [f.boxes for f in Building(office_block(2, 3.5), 0, 3).floors]
+    boxes4 = [f.boxes for f in Building(office_block(2, 3.5), 0, 4).floors]
     assert boxes3 != boxes4
 
 

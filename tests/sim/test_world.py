@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from mfmap.sim.atmosphere import CALM_AIR, KELVIN
-from mfmap.sim.building import Building
+from mfmap.sim.building import Building, office_block
 from mfmap.sim.run import build_trajectory, make_barometer
-from mfmap.sim.scenarios import SCENARIOS
+from mfmap.sim.scenarios import SCENARIOS, building_for
 from mfmap.sim.sensors import Barometer
 from mfmap.sim.trajectory import DT_S, Trajectory
 from mfmap.sim.world import TemperatureSpec, World, WorldSpec
@@ -21,7 +21,7 @@ from mfmap.sim.world import TemperatureSpec, World, WorldSpec
 
 def _barometer(scenario: str, seed: int, world: WorldSpec) -> tuple[Building, Trajectory, Barometer]:
     spec = dataclasses.replace(SCENARIOS[scenario], world=world)
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    building = building_for(spec, seed)
     traj = build_trajectory(spec, building, seed, 1)
     return building, traj, make_barometer(spec, building, traj, seed)
 
@@ -42,7 +42,7 @@ def test_calm_world_is_the_air_column_alone() -> None:
 
 
 def test_harsh_draws_cover_the_ranges() -> None:
-    building = Building(4, 3.6, 1, 0)
+    building = Building(office_block(4, 3.6), 1, 0)
     worlds = [World.draw(WorldSpec.harsh(), building, 101_000.0, seed) for seed in range(200)]
     t_c = np.array([w.air_temperature_k - KELVIN for w in worlds])
     assert t_c.min() >= 0.0 and t_c.max() <= 40.0 and t_c.min() < 3.0 and t_c.max() > 37.0
@@ -61,7 +61,7 @@ def test_harsh_draws_cover_the_ranges() -> None:
 
 def test_stack_effect_lowers_upper_floors_in_winter() -> None:
     spec = dataclasses.replace(WorldSpec.harsh(), outdoor_minus_indoor_k=(-25.0, -20.0), floor_hvac_pa=0.0)
-    building = Building(5, 4.0, 0, 0)
+    building = Building(office_block(5, 4.0), 0, 0)
     for seed in range(10):
         w = World.draw(spec, building, 101_000.0, seed)
         steps = np.diff(w.floor_offsets_pa)
