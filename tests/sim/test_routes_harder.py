@@ -29,15 +29,15 @@ def _held(z: np.ndarray, level: float, tol: float = 0.02) -> list[tuple[int, int
 
 def test_unequal_storeys() -> None:
     building, traj = _route("office-switchback")
-    assert [building.elevation(k) for k in range(4)] == [0.0, 5.5, 9.0, 12.5]
+    assert [building.elevation(k) for k in range(3)] == [0.0, 5.5, 9.0]
     assert building.storey_height(0) == 5.5 and not building.uniform
     # The switch-back flights of the lobby are longer than the offices' (same riser, more steps).
     assert building.flights[0].run_m > building.flights[1].run_m
     assert 0.16 < building.flights[0].rise_m < 0.19 and 0.16 < building.flights[1].rise_m < 0.19
     spec = SCENARIOS["office-switchback"]
     doc = floors_document(spec, building, traj, make_barometer(spec, building, traj, 0), 0, 0)
-    assert {f["id"]: f["elevation_m"] for f in doc["floors"]} == {0: 0.0, 1: 5.5, 2: 9.0, 3: 12.5}
-    assert doc["sim"]["floor_height_m"] is None and doc["sim"]["storey_heights_m"] == [5.5, 3.5, 3.5, 3.5]
+    assert {f["id"]: f["elevation_m"] for f in doc["floors"]} == {0: 0.0, 1: 5.5, 2: 9.0}
+    assert doc["sim"]["floor_height_m"] is None and doc["sim"]["storey_heights_m"] == [5.5, 3.5, 3.5]
     for f in doc["floors"]:
         for v0, v1 in f["visits"]:
             i0, i1 = round(v0 / DT_S), round(v1 / DT_S)
@@ -47,7 +47,7 @@ def test_unequal_storeys() -> None:
 def test_switchback_walk_with_landings_pauses_and_a_floor_passed_through() -> None:
     _, traj = _route("office-switchback")
     kinds = [(t.kind, t.from_floor, t.to_floor) for t in traj.transitions]
-    assert kinds == [("stairs", 0, 2), ("elevator", 2, 0), ("elevator", 0, 3), ("elevator", 3, 1), ("stairs", 1, 0)]
+    assert kinds == [("stairs", 0, 2), ("elevator", 2, 0), ("elevator", 0, 1), ("stairs", 1, 0)]
     walk = traj.transitions[0]
     i0, i1 = round(walk.t_start_s / DT_S), round(walk.t_end_s / DT_S)
     z = traj.xyz[i0:i1 + 1, 2]
@@ -75,7 +75,7 @@ def test_switchback_walk_with_landings_pauses_and_a_floor_passed_through() -> No
     # Climbing, not flying: the pitch follows the flights both ways.
     pitch = np.degrees(traj.rpy[i0:i1, 1])
     assert pitch.min() < -15 and np.abs(pitch).max() < 30
-    down = traj.transitions[4]
+    down = traj.transitions[3]
     j0, j1 = round(down.t_start_s / DT_S), round(down.t_end_s / DT_S)
     assert np.degrees(traj.rpy[j0:j1, 1]).max() > 15
     assert traj.xyz[j1, 2] == pytest.approx(0.0, abs=1e-9)
@@ -86,7 +86,7 @@ def test_the_carrier_is_on_the_steps_with_headroom() -> None:
 
     building, traj = _route("office-switchback")
     scene = building.scene(None)
-    for tr in (traj.transitions[0], traj.transitions[4]):
+    for tr in (traj.transitions[0], traj.transitions[3]):
         i0, i1 = round(tr.t_start_s / DT_S), round(tr.t_end_s / DT_S)
         pts = traj.xyz[i0:i1:40]
         base = pts + np.array([0.0, 0.0, 0.6])
@@ -114,5 +114,5 @@ def test_elevator_stops_at_floors_nobody_visits() -> None:
     assert np.abs(traj.xyz[k0 - 200 : k1 + 200, 2] - 5.5).max() < 1e-9
     assert traj.cabin_z_at(np.array([(t0 + t1) / 2]))[0] == pytest.approx(5.5)
     assert ride.height_change_m == pytest.approx(-9.0)
-    # Floor 1's only visit comes later, by the elevator from the top floor (stopping at 2).
-    assert [f for f, _, _ in traj.floor_visits] == [0, 2, 0, 3, 1, 0]
+    # Floor 1's only visit comes later, by the elevator from the lobby.
+    assert [f for f, _, _ in traj.floor_visits] == [0, 2, 0, 1, 0]
