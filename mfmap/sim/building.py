@@ -550,9 +550,19 @@ class Building:
         sgn = -1.0 if st.reverse else 1.0
         fx0, T = st.flight_x0, st.tread_m
         far = fx0 + sgn * g.run_m  # where the flights meet the half landing
+        # The divider between the lanes reaches down through the slab to the one below, but
+        # where this storey's flights run on over the half landing below (a longer flight than
+        # the storey's below) it stops at their underside, leaving headroom on that landing.
+        prev_run = self.flights[k - 1].run_m if k > 0 else g.run_m
+        reach = min(prev_run, g.run_m)
+        cut = fx0 + sgn * reach
         z_div = e - SLAB_M if k > 0 else e
-        lo, hi = sorted((fx0, far))
+        lo, hi = sorted((fx0, cut))
         floor.boxes.append(Box((lo, st.divider[0], z_div), (hi, st.divider[1], top), Kind.WALL))
+        if g.run_m > reach:
+            z_under = e + (h / 2) * (reach / g.run_m) - g.rise_m - st.waist_m
+            lo, hi = sorted((cut, far))
+            floor.boxes.append(Box((lo, st.divider[0], z_under), (hi, st.divider[1], top), Kind.WALL))
         if k == self.n_floors - 1:
             # The top floor: no flight leaves it, so a railing closes lane a at the landing's edge.
             a0, a1 = st.lane_a

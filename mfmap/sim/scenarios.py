@@ -6,6 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from mfmap.sim.building import Building, BuildingSpec, office_block
+from mfmap.sim.layout import FamilySpec, generate_building
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
 from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
@@ -184,6 +185,97 @@ def _office_switchback(b: RouteBuilder, reps: int) -> None:
     b.checkpoint("P2", 4.0)
 
 
+# -- generated buildings: a different one per seed ------------------------------------------
+_STAIR_PAUSES = {"landing_pause_s": (3.0, 30.0), "mid_flight_pause_s": (2.0, 10.0), "mid_flight_pause_share": 0.3}
+
+
+def _visit(b: RouteBuilder, labels: str, stop_s: float = 4.0) -> None:
+    """Stand at the building's checkpoints named by their numbers ("123": C1, C2, C3)."""
+    points = {name: (x, y) for name, x, y in b.building.spec.checkpoints}
+    for k in labels:
+        b.goto(points[f"C{k}"])
+        b.checkpoint(f"C{k}", stop_s)
+
+
+def _lift(b: RouteBuilder, to_floor: int, stops: tuple[int, ...] = ()) -> None:
+    b.goto(b.building.spec.shaft.front)
+    b.elevator(to_floor, stops=stops, stop_s=float(b.rng.uniform(3.0, 8.0)))
+
+
+def _walk(b: RouteBuilder, to_floor: int) -> None:
+    st = b.building.spec.stairwell
+    b.goto((sum(st.doors_x[0]) / 2, st.door_wall_y + st.outward * st.approach_m))
+    b.stairs(to_floor, **_STAIR_PAUSES)  # type: ignore[arg-type]
+
+
+def _gen_elevator(b: RouteBuilder, reps: int) -> None:
+    """Lobby, the top floor by elevator with a stop on a floor nobody visits, (a lower floor,)
+    back down to the lobby."""
+    top = b.building.n_floors - 1
+    for _ in range(reps):
+        _visit(b, "123")
+    _lift(b, top, stops=(top - 1,))
+    for _ in range(reps):
+        _visit(b, "12")
+    if top >= 3:
+        _lift(b, 1, stops=(2,))
+        for _ in range(reps):
+            _visit(b, "12")
+        _lift(b, 0)
+    else:
+        _lift(b, 0, stops=(1,))
+    _visit(b, "1")
+
+
+def _gen_stairs(b: RouteBuilder, reps: int) -> None:
+    """Up two storeys by the switch-back stairs without stopping on the floor between, down one,
+    the elevator back to the lobby."""
+    for _ in range(reps):
+        _visit(b, "123")
+    _walk(b, 2)
+    for _ in range(reps):
+        _visit(b, "12")
+    _walk(b, 1)
+    for _ in range(reps):
+        _visit(b, "1")
+    _lift(b, 0)
+    _visit(b, "1")
+
+
+def _gen_mixed(b: RouteBuilder, reps: int) -> None:
+    """The top floor by elevator stopping on floor 1, down two storeys by the stairs through the
+    floor between, (down to the lobby by elevator)."""
+    top = b.building.n_floors - 1
+    for _ in range(reps):
+        _visit(b, "123")
+    _lift(b, top, stops=(1,))
+    for _ in range(reps):
+        _visit(b, "12")
+    _walk(b, top - 2)
+    if top - 2 > 0:
+        for _ in range(reps):
+            _visit(b, "1")
+        _lift(b, 0)
+    _visit(b, "1")
+
+
+def _gen_tiny(b: RouteBuilder, reps: int) -> None:
+    for _ in range(reps):
+        _visit(b, "12", 3.0)
+    _lift(b, 1)
+    for _ in range(reps):
+        _visit(b, "1", 3.0)
+
+
+def _family(**kwargs: object) -> Callable[[int], BuildingSpec]:
+    fam = FamilySpec(**kwargs)  # type: ignore[arg-type]
+    return lambda seed: generate_building(seed, fam)
+
+
+_GEN_LIDAR = LidarSpec(beams=16, columns=512)
+_GEN = {"world": WorldSpec.harsh(), "lidar": _GEN_LIDAR, "gt_spacing_m": 0.08, "v_max": 0.8}
+
+
 _DRIFT = BaroSpec(drift_pa_per_h=200.0, transient_floors=(0, 1, 2), transient_every_s=30.0)
 
 SCENARIOS: dict[str, ScenarioSpec] = {
@@ -266,6 +358,59 @@ SCENARIOS: dict[str, ScenarioSpec] = {
             v_max=0.7,
             lidar=LidarSpec(beams=16, columns=512),
             building=lambda seed: office_block(3, 3.5, (5.5, 3.5, 3.5), switchback=True),
+        ),
+        ScenarioSpec(
+            "gen-tiny",
+            "a generated building per seed (two storeys of their own heights), one elevator "
+            "ride, ~1.5 min, harsh world (for tests)",
+            0,
+            0.0,
+            _gen_tiny,
+            building=_family(storeys="mixed", n_floors=(2, 2)),
+            world=WorldSpec.harsh(),
+            lidar=_GEN_LIDAR,
+        ),
+        ScenarioSpec(
+            "gen-elevator",
+            "a generated building per seed, a 4.5-6 m lobby under equal storeys, elevator rides "
+            "stopping at floors nobody visits, harsh world, 16x512 lidar",
+            0,
+            0.0,
+            _gen_elevator,
+            building=_family(storeys="lobby"),
+            **_GEN,  # type: ignore[arg-type]
+        ),
+        ScenarioSpec(
+            "gen-stairs",
+            "a generated building per seed, storeys of 2.6-6 m, switch-back stairs up two storeys "
+            "through a floor (landings, pauses), down one, harsh world, 16x512 lidar",
+            0,
+            0.0,
+            _gen_stairs,
+            building=_family(storeys="mixed"),
+            **_GEN,  # type: ignore[arg-type]
+        ),
+        ScenarioSpec(
+            "gen-mixed",
+            "a generated building per seed, storeys of 2.6-6 m, elevator to the top stopping on "
+            "floor 1, stairs down two storeys through a floor, harsh world, 16x512 lidar",
+            0,
+            0.0,
+            _gen_mixed,
+            building=_family(storeys="mixed", n_floors=(3, 4)),
+            **_GEN,  # type: ignore[arg-type]
+        ),
+        ScenarioSpec(
+            "gen-mixed-2d",
+            "gen-mixed with a 2D LaserScan (360 deg, 15 Hz) instead of the 3D lidar",
+            0,
+            0.0,
+            _gen_mixed,
+            building=_family(storeys="mixed", n_floors=(3, 4)),
+            world=WorldSpec.harsh(),
+            lidar=None,
+            laser=LaserSpec(),
+            gt_spacing_m=0.08,
         ),
         ScenarioSpec(
             "single-floor",

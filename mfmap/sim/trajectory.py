@@ -233,6 +233,14 @@ class RouteBuilder:
         rpy[:, 2] = yaw
         self._append(np.column_stack([xy, z]), rpy)
 
+    def goto(self, xy: tuple[float, float], v_max: float | None = None) -> None:
+        """Drive to xy along the building's corridors (both ends on a corridor's centre line)."""
+        from mfmap.sim.layout import plan_path
+
+        path = plan_path(self.building.spec.corridors, (float(self.pos[0]), float(self.pos[1])), xy)
+        if path:
+            self.drive(*path, v_max=v_max)
+
     def checkpoint(self, label: str, seconds: float = 5.0) -> None:
         """Stand still for `seconds`; the first visit of (label, floor) goes to gt_points.csv."""
         t0 = self.t

@@ -25,20 +25,30 @@ def _route(name: str, seed: int = 0) -> tuple[Building, object]:
     return building, build_trajectory(spec, building, seed, 1)
 
 
-@pytest.mark.parametrize("name", sorted(SCENARIOS))
-def test_route_is_drivable(name: str) -> None:
+_GENERATED = [(n, seed) for n in sorted(SCENARIOS) if SCENARIOS[n].building is not None for seed in (1, 2, 3)]
+
+
+@pytest.mark.parametrize(("name", "seed"), [(n, 0) for n in sorted(SCENARIOS)] + _GENERATED)
+def test_route_is_drivable(name: str, seed: int) -> None:
     import open3d as o3d
 
-    building, traj = _route(name)
+    building, traj = _route(name, seed)
     xyz = traj.xyz  # type: ignore[attr-defined]
     rpy = traj.rpy  # type: ignore[attr-defined]
     speed = np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1) / DT_S
     yaw_rate = np.abs(np.diff(rpy[:, 2])) / DT_S
     assert speed.max() <= 1.0 + 1e-9 and yaw_rate.max() < 0.7
-    assert np.abs(np.diff(xyz[:, 2])).max() / DT_S <= 1.0 + 1e-9  # elevator at most 1 m/s
-    # Every floor of the building is visited; the robot starts at the world origin.
+    # The elevator at most at its speed (1 m/s in the office block).
+    assert np.abs(np.diff(xyz[:, 2])).max() / DT_S <= building.spec.shaft.speed_m_s + 1e-9
+    # Every floor of the office block is visited (others skip floors: passed through on the
+    # stairs, stopped at in the cabin); the robot starts at the world origin.
     floors = {building.floor_of_height(z) for z in xyz[::200, 2]}
-    assert floors == set(range(building.n_floors))
+    visited = {f for f, _, _ in traj.floor_visits}  # type: ignore[attr-defined]
+    assert visited <= floors
+    if SCENARIOS[name].building is None:
+        assert floors == set(range(building.n_floors))
+    else:
+        assert len(visited) >= 2
     np.testing.assert_allclose(xyz[0], 0.0)
     # Clearance: 0.6 m above the base, nothing within 0.35 m (the robot's radius), except in the
     # elevator's doorway/cabin and the stairwell where the carrier squeezes past the divider.
