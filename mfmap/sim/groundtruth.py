@@ -2,14 +2,19 @@
 
 Formats as in DESIGN.md. Times are epoch seconds (the .tum and .csv carry all nine nanosecond
 digits). Besides the shared schema, gt_floors.json has:
+- floor ids are ranks among the floors the robot visits (0 = the lowest), as a build numbers
+  them: a floor only passed through on the stairs or stopped at in the cabin has none; each
+  floor's "building_floor" is its index in the building (0 = the building's lowest);
 - per transition: "connector" (0 = elevator, 1 = stairs), "height_change_m";
 - "sim": scenario, seed, start_ns (stamp of the first lidar scan = world-frame origin),
   building (its name), floor_height_m (null when the storeys differ), storey_heights_m and
-  elevations_m of every floor (visited or not), stairwell (straight or switchback),
+  elevations_m of every floor of the building (visited or not, by building floor),
+  stairwell (straight or switchback),
   reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
   column's virtual temperature at world z = 0), temperature_gradient_k_per_m, gravity_m_s2
   (pressure at height h: mfmap.sim.atmosphere.AirColumn), baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
-  door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible), world (the
+  door_open [[t_open, t_close, building floor]] (elevator doors open: the cabin is
+  visible), world (the
   building's air as drawn: mfmap.sim.world.World.document; floor_offsets_pa are each floor's
   pressure relative to the shaft's air column), door_pulses [[t, dPa]].
 Each floor's pressure_pa is at the barometer's height on it, at the start's weather, with the
@@ -83,11 +88,19 @@ def write_trajectory(path: Path, traj: Trajectory, start_ns: int, scan_times: np
     return _atomic_write(path, ("\n".join(lines) + "\n").encode())
 
 
+def floor_ids(traj: Trajectory) -> dict[int, int]:
+    """The building's floor index -> the ground truth's floor id: the rank among the floors the
+    robot visits (0 = the lowest), as a build numbers them; a floor only passed through on the
+    stairs or stopped at in the cabin is not among them."""
+    return {k: i for i, k in enumerate(sorted({f for f, _, _ in traj.floor_visits}))}
+
+
 def write_points(path: Path, traj: Trajectory, start_ns: int) -> Path:
+    ids = floor_ids(traj)
     lines = ["label,floor,x,y,z,t_start,t_end"]
     for c in traj.checkpoints:
         lines.append(
-            f"{c.label},{c.floor},{c.x:.4f},{c.y:.4f},{c.z:.4f},"
+            f"{c.label},{ids[c.floor]},{c.x:.4f},{c.y:.4f},{c.z:.4f},"
             f"{epoch_text(start_ns, c.t_start_s)},{epoch_text(start_ns, c.t_end_s)}"
         )
     return _atomic_write(path, ("\n".join(lines) + "\n").encode())
@@ -96,14 +109,16 @@ def write_points(path: Path, traj: Trajectory, start_ns: int) -> Path:
 def floors_document(
     spec: ScenarioSpec, building: Building, traj: Trajectory, baro: Barometer, start_ns: int, seed: int
 ) -> dict[str, Any]:
-    visited = sorted({f for f, _, _ in traj.floor_visits})
+    ids = floor_ids(traj)
+    visited = sorted(ids)
     all_floors = list(range(building.n_floors))
+    gt_ids = [ids[k] for k in visited]
     sx0, sx1, sy0, sy1 = building.stair_rect
     stair_xy = ((sx0 + sx1) / 2, (sy0 + sy1) / 2)
     shaft_xy = building.shaft_center
     connectors = [
-        {"id": 0, "kind": "elevator", "x": shaft_xy[0], "y": shaft_xy[1], "floors": all_floors},
-        {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": all_floors},
+        {"id": 0, "kind": "elevator", "x": shaft_xy[0], "y": shaft_xy[1], "floors": gt_ids},
+        {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": gt_ids},
     ]
     world = baro.world
     offsets = world.floor_offsets_pa if world is not None else [0.0] * building.n_floors
@@ -112,7 +127,8 @@ def floors_document(
         elev = building.elevation(k)
         floors.append(
             {
-                "id": k,
+                "id": ids[k],
+                "building_floor": k,
                 "elevation_m": round(elev, 6),
                 # Pressure at the barometer's height on this floor, at the start's weather.
                 "pressure_pa": round(baro.air.pressure_pa(elev + BARO_MOUNT.xyz[2], baro.p0_pa) + offsets[k], 3),
@@ -125,8 +141,8 @@ def floors_document(
     transitions = [
         {
             "kind": tr.kind,
-            "from": tr.from_floor,
-            "to": tr.to_floor,
+            "from": ids[tr.from_floor],
+            "to": ids[tr.to_floor],
             "t_start": epoch_s(start_ns, tr.t_start_s),
             "t_end": epoch_s(start_ns, tr.t_end_s),
             "height_change_m": round(tr.height_change_m, 6),

@@ -260,7 +260,7 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
     if len(picks) < 4:
         return None
     spec = BuildingSpec(
-        name=f"generated-{seed}",
+        name=f"generated-{fam.storeys}{fam.n_floors[0]}{fam.n_floors[1]}-{seed}",
         footprint=(0.0, W, 0.0, D),
         storey_heights_m=storeys,
         blocks=tuple(blocks),

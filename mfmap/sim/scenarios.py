@@ -220,7 +220,7 @@ def _gen_elevator(b: RouteBuilder, reps: int) -> None:
     if top >= 3:
         _lift(b, 1, stops=(2,))
         for _ in range(reps):
-            _visit(b, "12")
+            _visit(b, "1")
         _lift(b, 0)
     else:
         _lift(b, 0, stops=(1,))
@@ -231,7 +231,7 @@ def _gen_stairs(b: RouteBuilder, reps: int) -> None:
     """Up two storeys by the switch-back stairs without stopping on the floor between, down one,
     the elevator back to the lobby."""
     for _ in range(reps):
-        _visit(b, "123")
+        _visit(b, "12")
     _walk(b, 2)
     for _ in range(reps):
         _visit(b, "12")
@@ -239,7 +239,6 @@ def _gen_stairs(b: RouteBuilder, reps: int) -> None:
     for _ in range(reps):
         _visit(b, "1")
     _lift(b, 0)
-    _visit(b, "1")
 
 
 def _gen_mixed(b: RouteBuilder, reps: int) -> None:
@@ -247,7 +246,7 @@ def _gen_mixed(b: RouteBuilder, reps: int) -> None:
     floor between, (down to the lobby by elevator)."""
     top = b.building.n_floors - 1
     for _ in range(reps):
-        _visit(b, "123")
+        _visit(b, "12")
     _lift(b, top, stops=(1,))
     for _ in range(reps):
         _visit(b, "12")

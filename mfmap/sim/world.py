@@ -155,7 +155,7 @@ class World:
     outdoor_temperature_k: float | None
     stack_pa_per_m: float  # (rho_out - rho_in) * g; > 0 when the outside is colder
     neutral_plane_m: float
-    floor_offsets_pa: list[float]  # per floor id: stack and ventilation, relative to the shaft
+    floor_offsets_pa: list[float]  # per building floor: stack and ventilation, from the shaft
     floor_stack_share: float
     stair_stack_share: float
     shaft_offset_pa: float

@@ -4,6 +4,8 @@ visits, storeys of different heights. Trajectories only (no sensors): fast."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,20 @@ def test_elevator_stops_at_floors_nobody_visits() -> None:
     assert ride.height_change_m == pytest.approx(-9.0)
     # Floor 1's only visit comes later, by the elevator from the lobby.
     assert [f for f, _, _ in traj.floor_visits] == [0, 2, 0, 1, 0]
+
+
+def test_ground_truth_numbers_the_visited_floors(tmp_path: Path) -> None:
+    """gen-mixed at seed 1 visits the building's floors 0 and 2 and only passes floor 1 (in the
+    cabin and on the stairs): the ground truth has two floors, 0 and 1, as a build would."""
+    from mfmap.sim.groundtruth import write_points
+
+    spec = SCENARIOS["gen-mixed"]
+    building, traj = _route("gen-mixed", 1)
+    assert building.n_floors == 3 and {f for f, _, _ in traj.floor_visits} == {0, 2}
+    doc = floors_document(spec, building, traj, make_barometer(spec, building, traj, 1), 0, 1)
+    assert [(f["id"], f["building_floor"]) for f in doc["floors"]] == [(0, 0), (1, 2)]
+    assert doc["floors"][1]["elevation_m"] == pytest.approx(building.elevation(2))
+    assert [(t["kind"], t["from"], t["to"]) for t in doc["transitions"]] == [("elevator", 0, 1), ("stairs", 1, 0)]
+    assert doc["transitions"][1]["height_change_m"] == pytest.approx(-building.elevation(2))
+    rows = write_points(tmp_path / "p.csv", traj, 0).read_text().splitlines()[1:]
+    assert {r.split(",")[1] for r in rows} == {"0", "1"}
