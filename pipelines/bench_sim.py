@@ -7,7 +7,7 @@ log lengths (flat = written as it goes).
 
     .venv/bin/python pipelines/bench_sim.py                                  # two-floor and long
     .venv/bin/python pipelines/bench_sim.py --scenario two-floor --scale 1 2 4
-    .venv/bin/python pipelines/bench_sim.py --manifest pipelines/manifests/stress.yaml --cache
+    .venv/bin/python -m pipelines.bench_sim --manifest pipelines/manifests/stress.yaml --cache
 
 With --manifest, the manifest's simulated logs (scenario, seed, format); with --cache they are
 written into the simulator cache as the regression runner writes them (kept, so a following
