@@ -40,10 +40,6 @@ class GroundTruthError(MfmapError):
     """A ground-truth file that is malformed or does not match the build."""
 
 
-class RegressionFailure(MfmapError):
-    """A regression run that found a metric worse than its tolerance."""
-
-
 def read_text(path: Path, error: type[MfmapError], encoding: str = "utf-8-sig") -> str:
     """A text file's contents; a file that is not text (or cannot be read) raises `error`
     naming it, never UnicodeDecodeError."""

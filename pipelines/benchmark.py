@@ -37,7 +37,6 @@ from pipelines.regress.runner import SIM_LOG_NAME, ensure_simulated
 
 STANDARD_SCENARIOS = ["two-floor", "three-floor-revisit", "stairs", "single-floor"]
 QUICK_SCENARIOS = ["tiny"]
-SCALES = [1.0, 2.0, 4.0]
 # The acceptance figures for scaling.
 MAX_TIME_RATIO_4X = 4.4
 MAX_MEMORY_RATIO_4X = 1.5

@@ -130,13 +130,6 @@ def is_metric_name(name: str) -> bool:
     return _KNOWN.match(name) is not None
 
 
-def metrics_markdown() -> str:
-    """The METRICS table as Markdown, for the README."""
-    lines = ["| metric | meaning |", "|---|---|"]
-    lines += [f"| `{name}` | {text} |" for name, text in METRICS.items()]
-    return "\n".join(lines) + "\n"
-
-
 def threshold_label(distance_m: float) -> str:
     """0.05 -> '5cm', 0.025 -> '2p5cm' (no dot, so names stay dotted paths)."""
     cm = round(distance_m * 100, 6)

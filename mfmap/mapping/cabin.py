@@ -20,12 +20,6 @@ class _Relative(Protocol):
     def relative(self, from_ns: int, to_ns: int) -> F64 | None: ...
 
 
-def inside_box(points_base: F64, box_in_base: F64, half_xy_m: tuple[float, float]) -> np.ndarray:
-    """Mask of points whose x, y in the box frame fall inside the box (any height)."""
-    local = transform(points_base, inverse(box_in_base))
-    return (np.abs(local[:, 0]) < half_xy_m[0]) & (np.abs(local[:, 1]) < half_xy_m[1])
-
-
 def through_box(points_base: F64, origin_base: F64, box_in_base: F64,
                 half_xy_m: tuple[float, float]) -> np.ndarray:
     """Mask of points whose ray from the sensor enters the box (in x, y): the cabin's own

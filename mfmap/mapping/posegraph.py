@@ -9,7 +9,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from mfmap.types import F64, Keyframe, MappingResult, PoseEdge
+from mfmap.types import F64, MappingResult, PoseEdge
 
 
 def optimize_poses(
@@ -85,7 +85,3 @@ def scan_trajectory(
     stamps = np.array([sp.stamp_ns for sp in result.scan_poses], dtype=np.int64)
     poses = np.array([poses_by_id[sp.keyframe] @ sp.relative for sp in result.scan_poses])
     return stamps, poses.reshape(-1, 4, 4)
-
-
-def keyframes_of_visit(result: MappingResult, visit: int) -> list[Keyframe]:
-    return [kf for kf in result.keyframes if kf.visit == visit]
