@@ -8,7 +8,7 @@ Speed: `mfmap build` runs as a child process; wall time and the child's peak RSS
 (getrusage(RUSAGE_CHILDREN).ru_maxrss) are the whole process's. Accuracy: `mfmap eval` metrics
 against the simulator's ground truth (checkpoint RMSE per floor, inter-floor x/y/yaw/z errors) and
 each floor grid's occupied-cell precision/recall against the ground-truth walls within 1 and 2
-cells (`mfmap.export.score`, the scoring of tests/export).
+cells (`mfmap.eval.grids`, the scoring of tests/export).
 For the ablations the front stages (floors, mapping) run once and the graph and exports are
 redone per variant, since the switches only change the graph.
 """
@@ -112,7 +112,7 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
 def grid_scores(out: Path, sim: Path) -> str:
     """Occupied cells of each floor grid vs the ground-truth walls (as tests/export scores them;
     recall against the walls visible from the true path)."""
-    from mfmap.export.score import score_build
+    from mfmap.eval.grids import score_build
 
     lines = []
     for tol in (1, 2):

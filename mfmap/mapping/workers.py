@@ -82,11 +82,17 @@ def worker_cpus(workers: int) -> list[int | None]:
     return [current[k % len(current)] for k in range(workers)]
 
 
-def warm_up() -> None:
-    """Import what the jobs need (open3d, the mapper, the readers) before the first job comes."""
-    import mfmap.export.mapdata
-    import mfmap.ingest
-    import mfmap.mapping.stage  # noqa: F401
+# What a mapping job needs (open3d, the mapper, the readers). A caller whose pool also runs a
+# later stage's jobs names that stage's modules too, so this package never imports them.
+MAPPING_MODULES = ("mfmap.ingest", "mfmap.mapping.stage")
+
+
+def warm_up(modules: tuple[str, ...] = MAPPING_MODULES) -> None:
+    """Import what the jobs need before the first job comes."""
+    import importlib
+
+    for name in modules:
+        importlib.import_module(name)
 
 
 def _started() -> None:
@@ -94,9 +100,11 @@ def _started() -> None:
 
 
 @contextlib.contextmanager
-def worker_pool(workers: int, warm: bool | int = True) -> Iterator[Executor]:
+def worker_pool(workers: int, warm: bool | int = True,
+                warm_modules: tuple[str, ...] = MAPPING_MODULES) -> Iterator[Executor]:
     """`workers` pinned processes, all started now from this thread; `warm` of them (True: all)
-    warmed up while the caller goes on, the others import what their first job needs.
+    warmed up (importing `warm_modules`) while the caller goes on, the others import what their
+    first job needs.
 
     One pool serves every parallel stage of a build (mapping, then the maps' second pass), so
     each worker pays its start-up (~1 s: a spawned interpreter importing open3d) once. When the
@@ -117,7 +125,10 @@ def worker_pool(workers: int, warm: bool | int = True) -> Iterator[Executor]:
         # Submitted together, so each goes to a new process, started by this thread (which the
         # workers' death signal is tied to) and not later by whichever thread submits a job.
         for k in range(workers):
-            pool.submit(warm_up if k < n_warm else _started)
+            if k < n_warm:
+                pool.submit(warm_up, warm_modules)
+            else:
+                pool.submit(_started)
         yield pool
     except BaseException:
         stop_pool(pool)

@@ -17,10 +17,10 @@ import yaml
 from mfmap import pipeline
 from mfmap.config import MfmapConfig
 from mfmap.errors import MissingDataError, OutputError
+from mfmap.eval.grids import GRID_KEYS, load_grid, score_build
 from mfmap.export.config import CloudSource
 from mfmap.export.files import read_ply
 from mfmap.export.grid import GridBuilder
-from mfmap.export.score import GRID_KEYS, load_grid, score_build
 from tests.logcopy import copy_log
 
 EXPECTED = [
@@ -146,7 +146,7 @@ def test_grids_match_the_ground_truth_walls(built: tuple[Path, pipeline.BuildRes
         grid = load_grid(out / "floors" / str(floor_id))
         assert set(grid.meta) == set(GRID_KEYS) and grid.meta["mode"] == "trinary"
         assert grid.free.sum() > 0 and grid.occupied.sum() > 0
-    # Occupied cells vs the ground-truth walls the robot could see (mfmap.export.score): recall
+    # Occupied cells vs the ground-truth walls the robot could see (mfmap.eval.grids): recall
     # against the band cells a 2D ray cast meets first from the true path, whatever the build saw
     # (1674 / 1850 cells, floors 0 / 1). Measured on tiny: within two cells (10 cm) P 1.00 / 1.00,
     # R 1.000 / 0.990; within one cell P 0.99 / 1.00, R 0.999 / 0.983 (the misses: a corridor wall

@@ -10,9 +10,9 @@ import pytest
 import yaml
 
 from mfmap.errors import GroundTruthError
+from mfmap.eval.grids import LoadedGrid, floor_viewpoints, score_build, score_grid, visible_cells
 from mfmap.eval.io import Trajectory, write_ply
 from mfmap.export.grid import OccupancyGrid
-from mfmap.export.score import LoadedGrid, floor_viewpoints, score_build, score_grid, visible_cells
 
 SIZE = 40  # cells; rows = y, cols = x
 VIEW = np.array([[10.5, 20.5]])  # cell units: the middle of the left room
