@@ -172,10 +172,11 @@ def info(
 def config_cmd(
     config: ConfigOpt = None,
 ) -> None:
-    """Print the configuration as YAML (the defaults, or a file's resolved values)."""
+    """Print the configuration as YAML (the defaults, or a file's resolved values), each key's
+    description as a comment above it."""
     from mfmap.config import dump_config
 
-    sys.stdout.write(dump_config(_load(config)))
+    sys.stdout.write(dump_config(_load(config), comments=True))
 
 
 @app.command()

@@ -100,7 +100,34 @@ def merge_dicts(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def dump_config(config: MfmapConfig) -> str:
-    """YAML text of a config; `mfmap config` prints this for the defaults."""
+def dump_config(config: MfmapConfig, comments: bool = False) -> str:
+    """YAML text of a config; `mfmap config` prints it with each key's description as a
+    comment above it, so that a copy of the defaults explains itself."""
     header = "# mfmap configuration (mfmap config prints the defaults)\n"
-    return header + yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+    if not comments:
+        return header + yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+    return header + "".join(_commented(config, 0))
+
+
+_COMMENT_WIDTH = 96
+
+
+def _commented(model: BaseModel, depth: int) -> list[str]:
+    """`model` as YAML lines, a nested model as a block, each field's description above it."""
+    import textwrap
+
+    indent = "  " * depth
+    plain = model.model_dump(mode="json")
+    lines: list[str] = []
+    for name, info in type(model).model_fields.items():
+        if info.description:
+            width = max(_COMMENT_WIDTH - len(indent) - 2, 40)
+            lines += [f"{indent}# {text}\n" for text in textwrap.wrap(info.description, width)]
+        value = getattr(model, name)
+        if isinstance(value, BaseModel):
+            lines.append(f"{indent}{name}:\n")
+            lines += _commented(value, depth + 1)
+            continue
+        text = yaml.safe_dump({name: plain[name]}, sort_keys=False, width=10_000)
+        lines += [f"{indent}{line}\n" for line in text.splitlines()]
+    return lines
