@@ -3,6 +3,7 @@
     python -m pipelines.benchmark [--scenarios two-floor,stairs] [--quick] [--skip-peers]
                                   [--skip-scaling] [--scaling-scenario two-floor]
                                   [--scales 1,2,4] [--out work/benchmark]
+                                  [--markdown docs/performance.md]
 
 Every figure is measured on a child process: `mfmap build` (and each peer) runs in a subprocess,
 its wall time is taken around it and its peak memory is the child's own `ru_maxrss` from
@@ -15,7 +16,10 @@ its wall time is taken around it and its peak memory is the child's own `ru_maxr
   the scans are decoded; mfmap's count the whole build (floors, mapping, graph, exports).
 Scaling: the same building at 1x, 2x and 4x log length (`simulate(..., duration_scale=k)`);
 time should grow linearly (4x within 4.4x of 1x) and peak memory stay bounded (within 1.5x).
-Prints a Markdown table and writes it (and benchmark.json) to the output folder.
+Prints a Markdown table and writes it (and benchmark.json) to the output folder. With
+`--markdown FILE` the tables also replace what stands between the markers
+`<!-- benchmark:start -->` and `<!-- benchmark:end -->` in FILE (the whole file when it has
+none), so a document's figures are refreshed by the command it names.
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ from pipelines.regress.runner import SIM_LOG_NAME, ensure_simulated
 
 STANDARD_SCENARIOS = ["two-floor", "three-floor-revisit", "stairs", "single-floor"]
 QUICK_SCENARIOS = ["tiny"]
+MARKDOWN_START = "<!-- benchmark:start -->"
+MARKDOWN_END = "<!-- benchmark:end -->"
 # The issue's acceptance figures for scaling.
 MAX_TIME_RATIO_4X = 4.4
 MAX_MEMORY_RATIO_4X = 1.5
@@ -392,7 +398,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="builds per scenario; the figures are the median run's (default 1)")
     p.add_argument("--sim-cache", type=Path, default=DEFAULT_SIM_CACHE, help="simulated logs cache")
     p.add_argument("--out", type=Path, default=Path("work") / "benchmark", help="output folder")
+    p.add_argument("--markdown", type=Path, default=None, metavar="FILE",
+                   help="also write the tables into FILE, between its benchmark markers if it has them")
     return p.parse_args(argv)
+
+
+def splice_markdown(path: Path, tables: str) -> None:
+    """`tables` between the benchmark markers of `path`, or as the whole file without them."""
+    block = f"{MARKDOWN_START}\n{tables.strip()}\n{MARKDOWN_END}\n"
+    old = path.read_text() if path.exists() else ""
+    start, end = old.find(MARKDOWN_START), old.find(MARKDOWN_END)
+    if start < 0 or end < start:
+        write_text_atomic(path, block)
+        return
+    rest = old[end + len(MARKDOWN_END):]
+    write_text_atomic(path, old[:start] + block + rest.removeprefix("\n"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -429,14 +449,17 @@ def main(argv: list[str] | None = None) -> int:
     import platform
 
     cpus = os.cpu_count()
+    command = f"python -m pipelines.benchmark {' '.join(argv if argv is not None else sys.argv[1:])}".rstrip()
+    machine = f"{platform.machine()} with {cpus} CPUs, Python {platform.python_version()}"
+    legend = (
+        "Whole-process figures of each child: wall time, peak RSS (`ru_maxrss`); real-time factor = "
+        "log duration / wall time; build CPU s = user + system time of the build and its workers "
+        "(of the median run with `--repeat`)."
+    )
     text = [
         "## Performance",
         "",
-        f"Made by `python -m pipelines.benchmark {' '.join(argv if argv is not None else sys.argv[1:])}`".rstrip()
-        + f" on {started}, {platform.machine()} with {cpus} CPUs, Python {platform.python_version()}. "
-        "Whole-process figures of each child: wall time, peak RSS (`ru_maxrss`); real-time factor = "
-        "log duration / wall time; build CPU s = user + system time of the build and its workers "
-        "(of the median run with `--repeat`).",
+        f"Made by `{command}` on {started}, {machine}. {legend}",
         "",
         scenario_table(rows),
     ]
@@ -447,6 +470,11 @@ def main(argv: list[str] | None = None) -> int:
     markdown = "\n".join(text)
     sys.stdout.write(markdown)
     write_text_atomic(out / "benchmark.md", markdown)
+    if args.markdown is not None:
+        # The command and the machine, not the time of the run: a document states what it is.
+        splice_markdown(args.markdown, "\n".join([f"Made by `{command}` on {machine}. {legend}",
+                                                  "", *text[4:]]))
+        print(f"written: {args.markdown}", file=sys.stderr)
     data = {
         "started": started,
         "cpus": cpus,

@@ -8,12 +8,15 @@ import sys
 from pathlib import Path
 
 from pipelines.benchmark import (
+    MARKDOWN_END,
+    MARKDOWN_START,
     BuildFigures,
     ScenarioFigures,
     median_run,
     run_child,
     scaling_table,
     scenario_table,
+    splice_markdown,
     tum_span_s,
 )
 
@@ -107,3 +110,18 @@ def test_pin_cpus_claims_a_free_cpu(tmp_path: Path) -> None:
         fcntl.flock(held, fcntl.LOCK_EX)
         busy = run_child(argv)
     assert busy.stdout.split() == [f"[{cpus[1]}]"] * 2  # the first is held: the next one
+
+
+def test_markdown_replaces_only_the_text_between_the_markers(tmp_path: Path) -> None:
+    doc = tmp_path / "performance.md"
+    doc.write_text(f"# Performance\n\nintro\n\n{MARKDOWN_START}\nold table\n{MARKDOWN_END}\n\n## Stages\n")
+    splice_markdown(doc, "| new | table |\n")
+    text = doc.read_text()
+    assert text == (
+        f"# Performance\n\nintro\n\n{MARKDOWN_START}\n| new | table |\n{MARKDOWN_END}\n\n## Stages\n"
+    )
+    splice_markdown(doc, "| newer |")
+    assert "| new | table |" not in doc.read_text() and "## Stages" in doc.read_text()
+    bare = tmp_path / "bare.md"
+    splice_markdown(bare, "| t |")
+    assert bare.read_text() == f"{MARKDOWN_START}\n| t |\n{MARKDOWN_END}\n"
