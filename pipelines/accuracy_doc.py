@@ -2,6 +2,7 @@
 
     python -m pipelines.accuracy_doc                       # the sim_full and sim_seeds baselines
     python -m pipelines.accuracy_doc work/regression/sim_full/results.json -o -   # to stdout
+    python -m pipelines.accuracy_doc --headline            # the README's table alone
 
 Per log (scenario and seed): checkpoint RMSE per floor against the bars of the elevator paper's
 Table I (16 mm on the floor the robot starts on, 25 mm on the others), floor count and time
@@ -279,6 +280,27 @@ def render(logs: list[LogFigures], sources: list[str], command: str) -> str:
     return "\n".join(lines)
 
 
+def headline(logs: list[LogFigures]) -> str:
+    """The README's table: checkpoint RMSE per floor (mm) of each scenario built at several
+    seeds, one column per seed."""
+    plain = [g for g in logs if not g.variant and _floors(g.metrics)]
+    seeds_of: dict[str, dict[int, LogFigures]] = {}
+    for log in plain:
+        seeds_of.setdefault(log.scenario, {})[log.seed] = log
+    several = {name: by_seed for name, by_seed in seeds_of.items() if len(by_seed) > 1}
+    seeds = sorted({seed for by_seed in several.values() for seed in by_seed})
+    rows = []
+    for name in sorted(several):
+        cells = []
+        for seed in seeds:
+            found = several[name].get(seed)
+            m = found.metrics if found is not None else {}
+            cells.append(" / ".join(_num(m[f"points.floor{k}.rmse_m"], 1000, 1) for k in _floors(m))
+                         or "-")
+        rows.append([name, *cells])
+    return "\n".join(_table(["scenario", *(f"seed {s}" for s in seeds)], rows)) + "\n"
+
+
 def collect(paths: list[Path]) -> list[LogFigures]:
     """Every log of the sources, the first source's figures where a name repeats."""
     seen: dict[str, LogFigures] = {}
@@ -303,6 +325,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="baseline files or results.json (default: sim_full and sim_seeds baselines)")
     parser.add_argument("-o", "--out", default=str(DEFAULT_OUT),
                         help="markdown file to write, '-' for stdout (default docs/accuracy.md)")
+    parser.add_argument("--headline", action="store_true",
+                        help="print only the README's table (checkpoints per floor, one column per seed)")
     args = parser.parse_args(argv)
     paths = args.sources or DEFAULT_SOURCES
     shown = [_display(p) for p in paths]
@@ -314,6 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     except SourceError as err:
         print(f"accuracy_doc: error: {err}", file=sys.stderr)
         return 2
+    if args.headline:
+        sys.stdout.write(headline(logs))
+        return 0
     text = render(logs, shown, command)
     if args.out == "-":
         sys.stdout.write(text)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from pipelines import accuracy_doc
 
 BASELINE = accuracy_doc.ROOT / "pipelines" / "baselines" / "sim_seeds.json"
@@ -56,3 +58,13 @@ def test_not_a_regression_file_is_an_error(tmp_path: Path) -> None:
     bad = tmp_path / "x.json"
     bad.write_text("[1, 2]")
     assert accuracy_doc.main([str(bad), "-o", str(tmp_path / "a.md")]) == 2
+
+
+def test_headline_has_a_column_per_seed(capsys: pytest.CaptureFixture[str]) -> None:
+    full = accuracy_doc.ROOT / "pipelines" / "baselines" / "sim_full.json"
+    assert accuracy_doc.main([str(full), str(BASELINE), "--headline"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| scenario | seed 0 | seed 1 | seed 2 |"
+    m = json.loads(BASELINE.read_text())["logs"]["two-floor-s1"]["metrics"]
+    row = next(line for line in lines if line.startswith("| two-floor |"))
+    assert row.split(" | ")[2] == f"{m['points.floor0.rmse_m'] * 1000:.1f} / {m['points.floor1.rmse_m'] * 1000:.1f}"
