@@ -472,7 +472,10 @@ def main(argv: list[str] | None = None) -> int:
     write_text_atomic(out / "benchmark.md", markdown)
     if args.markdown is not None:
         # The command and the machine, not the time of the run: a document states what it is.
-        splice_markdown(args.markdown, "\n".join([f"Made by `{command}` on {machine}. {legend}",
+        from pipelines.regress.machine import machine_fingerprint
+
+        where = f"`{machine_fingerprint()}` with {cpus} CPUs"
+        splice_markdown(args.markdown, "\n".join([f"Made by `{command}` on {where}. {legend}",
                                                   "", *text[4:]]))
         print(f"written: {args.markdown}", file=sys.stderr)
     data = {
