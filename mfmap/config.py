@@ -17,10 +17,12 @@ from mfmap.eval.config import EvalConfig
 from mfmap.export.config import ExportConfig
 from mfmap.floors.config import FloorsConfig
 from mfmap.graph.config import GraphConfig
+from mfmap.ingest.camera_config import CameraConfig
 from mfmap.ingest.config import IngestConfig
 from mfmap.mapping.config import MappingConfig
 
 __all__ = [
+    "CameraConfig",
     "EvalConfig",
     "ExportConfig",
     "FloorsConfig",
@@ -37,6 +39,7 @@ class MfmapConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     ingest: IngestConfig = Field(default_factory=IngestConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
     floors: FloorsConfig = Field(default_factory=FloorsConfig)
     mapping: MappingConfig = Field(default_factory=MappingConfig)
     graph: GraphConfig = Field(default_factory=GraphConfig)
