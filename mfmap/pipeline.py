@@ -55,6 +55,7 @@ if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
+    from mfmap.ingest.depth import Camera
     from mfmap.ingest.source import LogSource
     from mfmap.mapping.config import MappingConfig
     from mfmap.types import MappingResult
@@ -136,6 +137,8 @@ def build(
                     worker_pool(max(cfg.mapping.workers, cfg.export.workers), warm=1,
                                 warm_modules=(*MAPPING_MODULES, "mfmap.export.mapdata")))
             extrinsics = src.extrinsics()
+            # Before any work: a configured camera's problem stops the build here.
+            cameras = find_depth_cameras(src, cfg)
             log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
 
             t0 = time.perf_counter()
@@ -177,6 +180,7 @@ def build(
 
             t0 = time.perf_counter()
             trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress, pool)
+            camera_images = add_depth_cameras(src, cameras, seg, trajectory, maps, cfg)
             timings["accumulate"] = time.perf_counter() - t0
 
             from mfmap.export.cabin import measure_from_log
@@ -198,6 +202,7 @@ def build(
                 "loop_edges": sum(1 for e in mapping.edges if e.kind == "loop"),
                 "scans": len(mapping.scan_poses),
                 "scans_exported": maps.scans,
+                **({"depth_images": maps.images} if camera_images else {}),
                 "pressure_samples": len(pressure) if pressure is not None else 0,
             }
             report: dict[str, Any] = {
@@ -515,6 +520,39 @@ def accumulate(
             bar.advance(part.scans)
             maps.merge(part)
     return trajectory, maps
+
+
+def find_depth_cameras(src: LogSource, cfg: MfmapConfig) -> list[Camera]:
+    """The log's usable depth cameras; a discovered camera that cannot be used is the log's
+    warning (the lidar carries the build), a configured one raises CameraProblem."""
+    if not cfg.camera.enabled:
+        return []
+    from mfmap.ingest.depth import find_cameras
+
+    cameras, warnings = find_cameras(src, cfg.camera)
+    for text in warnings:
+        if text not in src.warnings:
+            src.warnings.append(text)
+    return cameras
+
+
+def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentation,
+                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig) -> dict[str, int]:
+    """The depth cameras' images into the floor maps (images used per depth topic), left out
+    where the lidar scans are: rides, stair walks and elevator cabins."""
+    if not cameras:
+        return {}
+    from mfmap.export.camera import add_cameras
+
+    margin = int(cfg.export.transition_margin_s * 1e9)
+    spans = [(tr.start_ns - margin, tr.end_ns + margin) for tr in seg.transitions]
+    shafts = _distinct_cabins(_cabins(seg, trajectory, cfg))
+
+    def usable(stamp_ns: int, pose: F64) -> bool:
+        return (seg.floor_at(stamp_ns) >= 0 and not _near_transition(stamp_ns, spans)
+                and not _in_cabin(pose, stamp_ns, shafts))
+
+    return add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable)
 
 
 @dataclass(frozen=True)

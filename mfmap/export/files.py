@@ -27,26 +27,34 @@ def write_yaml(path: Path, data: Any) -> None:
     write_text(path, yaml.safe_dump(data, sort_keys=False))
 
 
-def ply_bytes(xyz: np.ndarray, floor: np.ndarray | None = None) -> bytes:
-    """Binary little-endian PLY: float32 x y z, plus int32 `floor` when given."""
+def ply_bytes(xyz: np.ndarray, floor: np.ndarray | None = None, rgb: np.ndarray | None = None) -> bytes:
+    """Binary little-endian PLY: float32 x y z, plus int32 `floor` and uchar `red green blue`
+    when given."""
     n = int(xyz.shape[0])
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if floor is not None:
         fields.append(("floor", "<i4"))
+    if rgb is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     rec = np.empty(n, dtype=fields)
     rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     if floor is not None:
         rec["floor"] = floor
+    if rgb is not None:
+        rec["red"], rec["green"], rec["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += ["property float x", "property float y", "property float z"]
     if floor is not None:
         header.append("property int floor")
+    if rgb is not None:
+        header += ["property uchar red", "property uchar green", "property uchar blue"]
     header.append("end_header")
     return ("\n".join(header) + "\n").encode() + rec.tobytes()
 
 
-def write_ply(path: Path, xyz: np.ndarray, floor: np.ndarray | None = None) -> None:
-    write_bytes(path, ply_bytes(xyz, floor))
+def write_ply(path: Path, xyz: np.ndarray, floor: np.ndarray | None = None,
+              rgb: np.ndarray | None = None) -> None:
+    write_bytes(path, ply_bytes(xyz, floor, rgb))
 
 
 def read_ply(path: Path) -> dict[str, np.ndarray]:

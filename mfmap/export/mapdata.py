@@ -43,38 +43,81 @@ def _first_per_cell(cells: np.ndarray) -> np.ndarray:
 
 
 class _FloorCloud:
-    """One point per voxel, merged in batches so memory stays bounded by the map's size."""
+    """One point per voxel, merged in batches so memory stays bounded by the map's size.
+
+    Once a coloured point (a camera's) arrives the cloud carries colours: in a voxel with both a
+    coloured and an uncoloured point, the coloured one is kept.
+    """
 
     def __init__(self, voxel_m: float) -> None:
         self.voxel_m = voxel_m
         self.keys = np.zeros(0, dtype=np.int64)
         self.points = np.zeros((0, 3), dtype=np.float32)
-        self.pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self.rgb: np.ndarray | None = None  # (N, 3) uint8 once coloured
+        self.coloured_mask: np.ndarray | None = None  # (N,) bool once coloured
+        self.pending: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self.pending_n = 0
 
-    def add(self, points: np.ndarray) -> None:
+    def add(self, points: np.ndarray, rgb: np.ndarray | None = None) -> None:
         if points.shape[0] == 0:
             return
         cells = np.floor(points / self.voxel_m).astype(np.int64)
         first = _first_per_cell(cells)
-        self.pending.append((_keys_of_cells(cells[first]), points[first].astype(np.float32)))
+        colours = None if rgb is None else np.asarray(rgb, dtype=np.uint8)[first]
+        self.pending.append((_keys_of_cells(cells[first]), points[first].astype(np.float32), colours))
         self.pending_n += len(first)
+        if rgb is not None and self.rgb is None:
+            self.rgb = np.zeros((len(self.keys), 3), dtype=np.uint8)
+            self.coloured_mask = np.zeros(len(self.keys), dtype=bool)
         if self.pending_n > max(2_000_000, 2 * len(self.keys)):
             self._merge()
 
     def _merge(self) -> None:
         if not self.pending:
             return
-        keys = np.concatenate([self.keys, *[k for k, _ in self.pending]])
-        points = np.concatenate([self.points, *[p for _, p in self.pending]])
-        self.keys, first = np.unique(keys, return_index=True)
-        self.points = points[first]
+        keys = np.concatenate([self.keys, *[k for k, _, _ in self.pending]])
+        points = np.concatenate([self.points, *[p for _, p, _ in self.pending]])
+        if self.rgb is None or self.coloured_mask is None:
+            self.keys, first = np.unique(keys, return_index=True)
+            self.points = points[first]
+        else:
+            rgb = np.concatenate([self.rgb, *[c if c is not None else np.zeros((len(k), 3), np.uint8)
+                                              for k, _, c in self.pending]])
+            has = np.concatenate([self.coloured_mask, *[np.full(len(k), c is not None)
+                                                        for k, _, c in self.pending]])
+            # By voxel, coloured first, then arrival order: the first of each voxel is kept.
+            order = np.lexsort((np.arange(len(keys)), ~has, keys))
+            sorted_keys = keys[order]
+            starts = np.concatenate(([True], sorted_keys[1:] != sorted_keys[:-1]))
+            first = order[starts]
+            self.keys = sorted_keys[starts]
+            self.points, self.rgb, self.coloured_mask = points[first], rgb[first], has[first]
         self.pending = []
         self.pending_n = 0
 
     def cloud(self) -> np.ndarray:
         self._merge()
         return self.points
+
+    def colours(self, fill_radius_m: float) -> np.ndarray | None:
+        """(N, 3) uint8 colours, None when no camera coloured this cloud. A point no camera saw
+        (a lidar return) takes the colour of the nearest coloured point within fill_radius_m,
+        else mid grey."""
+        self._merge()
+        if self.rgb is None or self.coloured_mask is None:
+            return None
+        out = self.rgb.copy()
+        missing = np.flatnonzero(~self.coloured_mask)
+        out[missing] = 128
+        have = np.flatnonzero(self.coloured_mask)
+        if missing.shape[0] and have.shape[0]:
+            from pykdtree.kdtree import KDTree
+
+            tree = KDTree(self.points[have].astype(np.float64))
+            dist, idx = tree.query(self.points[missing].astype(np.float64), k=1)
+            near = dist <= fill_radius_m
+            out[missing[near]] = self.rgb[have[idx[near]]]
+        return out
 
 
 class MapAccumulator:
@@ -87,6 +130,7 @@ class MapAccumulator:
         self.grids: dict[int, GridBuilder] = {}
         self.last_view: dict[int, F64] = {}
         self.scans = 0
+        self.images = 0  # depth images added
         self.min_hits = config.grid_min_hits
 
     def add(self, floor_id: int, pose: F64, points_base: np.ndarray, force_view: bool = False) -> None:
@@ -124,6 +168,28 @@ class MapAccumulator:
         else:
             grid.add_obstacles(band)
 
+    def add_camera(self, floor_id: int, pose: F64, points_base: np.ndarray,
+                   rgb: np.ndarray | None, band_m: tuple[float, float]) -> None:
+        """One depth image's points in the base frame at the base pose of its stamp: into the
+        cloud (with their colours), and as obstacles into the grid where they fall in the
+        robot's height band (a camera sees tables and shelves a 2D scan passes under or over;
+        its narrow view adds no free space)."""
+        if floor_id < 0 or floor_id not in self.floor_z_m or points_base.shape[0] == 0:
+            return
+        pts = np.asarray(points_base, dtype=np.float64)
+        world = pts @ pose[:3, :3].T + pose[:3, 3]
+        cloud = self.clouds.setdefault(floor_id, _FloorCloud(self.config.cloud_voxel_m))
+        cloud.add(world, rgb)
+        self.images += 1
+        grid = self.grids.get(floor_id)
+        if grid is None:
+            return  # no lidar view of this floor: no grid to add to
+        rel_z = pts[:, 2] + (pose[2, 3] - self.floor_z_m[floor_id])
+        grid.add_obstacles(world[(rel_z >= band_m[0]) & (rel_z <= band_m[1]), :2])
+
+    def colours(self, floor_id: int, fill_radius_m: float = 0.2) -> np.ndarray | None:
+        return self.clouds[floor_id].colours(fill_radius_m)
+
     def merge(self, other: MapAccumulator) -> None:
         """Take over the floors of an accumulator that saw other floors (a worker's)."""
         if set(other.clouds) & set(self.clouds) or set(other.grids) & set(self.grids):
@@ -132,6 +198,7 @@ class MapAccumulator:
         self.grids.update(other.grids)
         self.last_view.update(other.last_view)
         self.scans += other.scans
+        self.images += other.images
 
     def floor_ids(self) -> list[int]:
         return sorted(self.clouds)

@@ -190,6 +190,8 @@ def write_outputs(
     summary.floors_doc = floors_doc
 
     clouds = {floor_id: maps.cloud(floor_id) for floor_id in maps.floor_ids()}
+    colours = {floor_id: maps.colours(floor_id) for floor_id in maps.floor_ids()}
+    coloured = any(c is not None for c in colours.values())
     xyz = np.concatenate(list(clouds.values())) if clouds else np.zeros((0, 3), np.float32)
     floor = (np.concatenate([np.full(c.shape[0], f, dtype=np.int32) for f, c in clouds.items()])
              if clouds else np.zeros(0, np.int32))
@@ -200,7 +202,7 @@ def write_outputs(
     grids: dict[int, OccupancyGrid] = {}
     for floor_id, cloud in clouds.items():
         sub = folder / "floors" / str(floor_id)
-        write_ply(sub / "cloud.ply", cloud)
+        write_ply(sub / "cloud.ply", cloud, rgb=colours[floor_id])
         summary.points_per_floor[floor_id] = int(cloud.shape[0])
         on_floor = trajectory.floor == floor_id
         traj_xy = trajectory.poses[on_floor, :2, 3] if on_floor.any() else None
@@ -217,7 +219,12 @@ def write_outputs(
             "occupied": int(grid.occupied.sum()),
             "free": int(grid.free.sum()),
         }
-    write_ply(folder / "map.ply", xyz, floor)
+    rgb = None
+    if coloured:
+        grey = np.full((0, 3), 128, np.uint8)
+        rgb = np.concatenate([c if c is not None else np.full((clouds[f].shape[0], 3), 128, np.uint8)
+                              for f, c in colours.items()] or [grey])
+    write_ply(folder / "map.ply", xyz, floor, rgb)
     elevation = {f["id"]: float(f["elevation_m"]) for f in floors_doc["floors"]}
     export_warnings = write_building(folder, title, floors_doc, clouds, grids, elevation, cabins,
                                      trajectory)
