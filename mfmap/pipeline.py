@@ -552,7 +552,14 @@ def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentat
         return (seg.floor_at(stamp_ns) >= 0 and not _near_transition(stamp_ns, spans)
                 and not _in_cabin(pose, stamp_ns, shafts))
 
-    return add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable)
+    def outside(points_base: np.ndarray, pose: F64, stamp_ns: int) -> np.ndarray:
+        # A camera by an open landing door sees the cabin (and the shaft) as the lidar does.
+        if not shafts or points_base.shape[0] == 0:
+            return np.ones(points_base.shape[0], dtype=bool)
+        return _outside_cabins(points_base, pose, stamp_ns, shafts)
+
+    return add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
+                       outside)
 
 
 @dataclass(frozen=True)
@@ -751,15 +758,21 @@ def _in_cabin(pose: F64, stamp_ns: int, cabins: list[_Cabin], margin_m: float = 
 
 
 def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[_Cabin]) -> np.ndarray:
-    """Drop returns from each elevator cabin and from anything seen through it.
+    """Drop returns from each elevator cabin and from anything seen through it (see
+    `_outside_cabins`)."""
+    if not cabins or points_base.shape[0] == 0:
+        return points_base
+    return points_base[_outside_cabins(points_base, pose, stamp_ns, cabins)]
+
+
+def _outside_cabins(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[_Cabin]) -> np.ndarray:
+    """Mask of the points that are not returns from an elevator cabin or seen through it.
 
     Cabin walls are often mirrors (seed 000): what a ray shows after crossing the cabin is a
     reflection, not the building. In the base frame of the scan, per cabin: points inside the
     cabin box, and points whose ray from the sensor leaves the box before reaching them.
     """
     del stamp_ns  # the cabin stays where it is; its walls matter at any time
-    if not cabins or points_base.shape[0] == 0:
-        return points_base
     keep = np.ones(points_base.shape[0], dtype=bool)
     range2 = np.einsum("ij,ij->i", points_base[:, :2], points_base[:, :2])
     for cabin in cabins:
@@ -783,7 +796,7 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
         crosses = (t_near <= t_far) & (t_far > 0.0) & (t_near < 1.0)
         inside = np.all(np.abs(local) < half, axis=1)
         keep[near[inside | (crosses & (t_far < 1.0))]] = False
-    return points_base[keep]
+    return keep
 
 
 # ----- the output folder -------------------------------------------------------------------

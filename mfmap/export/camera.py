@@ -50,12 +50,13 @@ def pose_at(trajectory: Trajectory, stamp_ns: int, max_gap_ns: int) -> tuple[F64
 
 def add_cameras(src: LogSource, cameras: list[Camera], trajectory: Trajectory, maps: MapAccumulator,
                 config: CameraConfig, band_m: tuple[float, float],
-                usable: Callable[[int, F64], bool]) -> dict[str, int]:
+                usable: Callable[[int, F64], bool],
+                keep: Callable[[np.ndarray, F64, int], np.ndarray] | None = None) -> dict[str, int]:
     """Add the depth cameras' images to `maps`; returns images used per depth topic.
 
     An image is used when the trajectory poses it, `usable(stamp, pose)` accepts it (not in a
     ride, a stair walk or a cabin) and the robot moved or turned enough since that camera's last
-    used image.
+    used image; `keep(points_base, pose, stamp)` masks the points to use (not the cabin's).
     """
     from mfmap.ingest.depth import camera_points
 
@@ -79,7 +80,12 @@ def add_cameras(src: LogSource, cameras: list[Camera], trajectory: Trajectory, m
         for image in camera_points(src, cam, config, want):
             pose, floor_id = posed.pop(image.stamp_ns)
             pts = image.xyz.astype(np.float64) @ cam.to_base[:3, :3].T + cam.to_base[:3, 3]
-            maps.add_camera(floor_id, pose, pts, image.rgb, band_m)
+            rgb = image.rgb
+            if keep is not None:
+                mask = keep(pts, pose, image.stamp_ns)
+                pts = pts[mask]
+                rgb = rgb[mask] if rgb is not None else None
+            maps.add_camera(floor_id, pose, pts, rgb, band_m)
             count += 1
         used[cam.depth_topic] = count
     return used
