@@ -283,6 +283,8 @@ class BuildingSpec:
     extra_walls: tuple[tuple[str, float, float, float], ...] = ()
     corridors: tuple[Corridor, ...] = ()
     checkpoints: tuple[tuple[str, float, float], ...] = ()
+    # Boxes on every floor, z relative to its slab top (tables, wall shelves).
+    fixtures: tuple[Box, ...] = ()
 
     @property
     def n_floors(self) -> int:
@@ -312,6 +314,33 @@ def office_block(
         shaft=ShaftSpec(center=SHAFT_CENTER, front=(SHAFT_CENTER[0], -0.6)),
         stairwell=stairwell,
         pillars=PILLARS_XY,
+    )
+
+
+def _table(x0: float, x1: float, y0: float, y1: float, top_m: float = 0.75) -> list[Box]:
+    """A table: a 4 cm top on four 5 cm legs (a 2D scan below the top sees only the legs)."""
+    legs = [Box((x, y, 0.0), (x + 0.05, y + 0.05, top_m - 0.04), Kind.FURNITURE)
+            for x in (x0 + 0.03, x1 - 0.08) for y in (y0 + 0.03, y1 - 0.08)]
+    return [Box((x0, y0, top_m - 0.04), (x1, y1, top_m), Kind.FURNITURE), *legs]
+
+
+def corridor_block(n_floors: int, floor_height_m: float) -> BuildingSpec:
+    """The office block with its north corridor narrowed to 2 m (y -1 to 1) and 30 m long, as
+    the corridors of Fan et al.'s experiment, without pillars, and on every floor tables along
+    its north wall and wall cabinets on its south wall (tops at 0.75 m, cabinets from 1.0 to
+    1.3 m: obstacles in the robot's height band that a scan at 0.3 m passes under or over)."""
+    base = office_block(n_floors, floor_height_m)
+    blocks = tuple(
+        Block(b.name, b.x0, b.x1, b.y0, -1.0 if b.y1 == -3.0 else b.y1, b.sides, b.limits)
+        for b in base.blocks
+    )
+    fixtures = [*_table(5.0, 6.2, 0.45, 1.0), *_table(10.5, 12.0, 0.45, 1.0)]
+    for x0, x1 in ((2.0, 3.5), (8.0, 9.5)):
+        fixtures.append(Box((x0, -1.0, 1.0), (x1, -0.65, 1.3), Kind.FURNITURE))
+    return BuildingSpec(
+        name="corridor-block", footprint=base.footprint, storey_heights_m=base.storey_heights_m,
+        blocks=blocks, shaft=base.shaft, stairwell=base.stairwell, pillars=(),
+        extra_walls=base.extra_walls, fixtures=tuple(fixtures),
     )
 
 
@@ -464,6 +493,8 @@ class Building:
         ph = self.spec.pillar_half_m
         for px, py in self.spec.pillars:
             boxes.append(Box((px - ph, py - ph, e), (px + ph, py + ph, top), Kind.PILLAR))
+        for fx in self.spec.fixtures:
+            boxes.append(Box((fx.lo[0], fx.lo[1], e + fx.lo[2]), (fx.hi[0], fx.hi[1], e + fx.hi[2]), fx.kind))
         for block in self.spec.blocks:
             self._block(floor, block, rng)
 

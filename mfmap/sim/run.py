@@ -45,6 +45,10 @@ TOPIC_ODOM = "/odom"
 TOPIC_BARO = "/baro/pressure"
 TOPIC_BARO_TEMPERATURE = "/baro/temperature"
 TOPIC_TF_STATIC = "/tf_static"
+TOPIC_DEPTH = "/camera/depth/image_raw"
+TOPIC_DEPTH_INFO = "/camera/depth/camera_info"
+TOPIC_COLOUR = "/camera/rgb/image_raw/compressed"
+TOPIC_COLOUR_INFO = "/camera/rgb/camera_info"
 BASE_FRAME = "base_link"
 ODOM_FRAME = "odom"
 IMU_RATE_HZ = 200
@@ -203,6 +207,17 @@ def _write_log(
     w.add_topic(TOPIC_BARO, "sensor_msgs/msg/FluidPressure")
     if thermo:
         w.add_topic(TOPIC_BARO_TEMPERATURE, "sensor_msgs/msg/Temperature")
+    camera = None
+    if spec.camera is not None:
+        from mfmap.sim.camera import CAMERA_MOUNT, RgbdCamera
+
+        camera = RgbdCamera(spec.camera, scenes, seed)
+        mounts.append(CAMERA_MOUNT)
+        for topic, msgtype in ((TOPIC_DEPTH, "sensor_msgs/msg/Image"),
+                               (TOPIC_DEPTH_INFO, "sensor_msgs/msg/CameraInfo"),
+                               (TOPIC_COLOUR, "sensor_msgs/msg/CompressedImage"),
+                               (TOPIC_COLOUR_INFO, "sensor_msgs/msg/CameraInfo")):
+            w.add_topic(topic, msgtype)
     w.add_topic(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", latched=True)
     w.write(TOPIC_TF_STATIC, start_ns, _tf_static(w, mounts, start_ns))
 
@@ -310,10 +325,46 @@ def _write_log(
                         variance=thermo.noise_k**2,
                     )
                     batch.append((stamp, 4, TOPIC_BARO_TEMPERATURE, msg))
+            if camera is not None:
+                batch += _camera_messages(w, camera, sec, start_ns)
             batch.sort(key=lambda m: (m[0], m[1]))
             for stamp, _, topic, msg in batch:
                 w.write(topic, stamp, msg)
     return dict(w.counts)
+
+
+def _camera_messages(w: LogWriter, camera: Any, sec: int, start_ns: int) -> list[tuple[int, int, str, Any]]:
+    """One second of the RGB-D camera: depth (16UC1 mm), jpeg colour and their CameraInfo."""
+    import cv2
+
+    T = w.types
+    s = camera.spec
+    frame = camera.mount.frame
+    out: list[tuple[int, int, str, Any]] = []
+    roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    k = np.array(s.k, dtype=np.float64)
+    p = np.array([k[0], 0, k[2], 0, 0, k[4], k[5], 0, 0, 0, 1, 0], dtype=np.float64)
+    for kk in range(sec * s.rate_hz, (sec + 1) * s.rate_hz):
+        stamp = _stamp(start_ns, kk, s.rate_hz)
+        depth, rgb = camera.capture(kk / s.rate_hz)
+        for topic in (TOPIC_DEPTH_INFO, TOPIC_COLOUR_INFO):
+            mats = {"d": np.zeros(5), "k": k, "r": np.eye(3).reshape(-1), "p": p}
+            if w.fmt == "ros1":
+                mats = {key.upper(): v for key, v in mats.items()}
+            info = T["sensor_msgs/msg/CameraInfo"](
+                header=w.header(stamp, frame, topic), height=s.height, width=s.width,
+                distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi, **mats)
+            out.append((stamp, 5, topic, info))
+        out.append((stamp, 6, TOPIC_DEPTH, T["sensor_msgs/msg/Image"](
+            header=w.header(stamp, frame, TOPIC_DEPTH), height=s.height, width=s.width,
+            encoding="16UC1", is_bigendian=0, step=s.width * 2, data=u8(depth.astype("<u2")))))
+        ok, jpeg = cv2.imencode(".jpg", np.ascontiguousarray(rgb[:, :, ::-1]),
+                                [cv2.IMWRITE_JPEG_QUALITY, s.jpeg_quality])
+        assert ok
+        out.append((stamp, 7, TOPIC_COLOUR, T["sensor_msgs/msg/CompressedImage"](
+            header=w.header(stamp, frame, TOPIC_COLOUR), format="rgb8; jpeg compressed bgr8",
+            data=u8(jpeg.tobytes()))))
+    return out
 
 
 def _tf_static(w: LogWriter, mounts: list[Mount], stamp_ns: int) -> Any:

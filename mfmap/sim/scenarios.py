@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from mfmap.sim.building import Building, BuildingSpec, office_block
+from mfmap.sim.building import Building, BuildingSpec, corridor_block, office_block
+from mfmap.sim.camera import RgbdSpec
 from mfmap.sim.layout import FamilySpec, generate_building
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
 from mfmap.sim.trajectory import RouteBuilder
@@ -14,6 +15,7 @@ from mfmap.sim.world import WorldSpec
 # Checkpoints of the manual-driving experiment in seeds/000 (Table I), world frame.
 P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
 W_NORTH, W_SOUTH = (-2.75, -1.0), (-2.75, -12.0)
+C1, C2 = (1.5, 0.0), (11.5, 0.0)  # the ends of the walk along the corridor building's corridor
 
 Route = Callable[[RouteBuilder, int], None]
 
@@ -36,6 +38,7 @@ class ScenarioSpec:
     gt_spacing_m: float = 0.05
     # The building for a seed; None: the office block with n_floors storeys of floor_height_m.
     building: Callable[[int], BuildingSpec] | None = None
+    camera: RgbdSpec | None = None  # an RGB-D camera beside the range sensor
 
 
 def building_for(spec: ScenarioSpec, seed: int) -> Building:
@@ -266,6 +269,19 @@ def _gen_tiny(b: RouteBuilder, reps: int) -> None:
         _visit(b, "1", 3.0)
 
 
+def _corridor(b: RouteBuilder, reps: int) -> None:
+    """Each floor: along the 2 m corridor past the tables and shelves and back, then up."""
+    for floor in range(4):
+        if floor:
+            b.elevator(floor)
+        for _ in range(reps):
+            b.drive(C1)
+            b.checkpoint("C1", 3.0)
+            b.drive(C2)
+            b.checkpoint("C2", 3.0)
+            b.drive(C1)
+
+
 def _family(**kwargs: object) -> Callable[[int], BuildingSpec]:
     fam = FamilySpec(**kwargs)  # type: ignore[arg-type]
     return lambda seed: generate_building(seed, fam)
@@ -410,6 +426,19 @@ SCENARIOS: dict[str, ScenarioSpec] = {
             lidar=None,
             laser=LaserSpec(),
             gt_spacing_m=0.08,
+        ),
+        ScenarioSpec(
+            "corridor-rgbd",
+            "as Fan et al.'s experiment: four 3.5 m floors of a building with a 30 x 2 m corridor, "
+            "elevator, a 2D LaserScan (10 Hz), an RGB-D camera (80 x 60, 2 Hz, jpeg colour), tables and "
+            "wall cabinets the scan passes under or over, ~5 min",
+            4,
+            3.5,
+            _corridor,
+            lidar=None,
+            laser=LaserSpec(samples=360, rate_hz=10),
+            building=lambda seed: corridor_block(4, 3.5),
+            camera=RgbdSpec(rate_hz=2),
         ),
         ScenarioSpec(
             "single-floor",
