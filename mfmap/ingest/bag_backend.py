@@ -178,6 +178,9 @@ class RosbagsBackend:
                 f"{self.path} topic {conn.topic}",
             ) from err
 
+    def typestore(self, message: RawMessage) -> Any:
+        return self.reader.typestore
+
     def raw_size(self, message: RawMessage) -> int:
         return len(message.payload[1])
 

@@ -120,33 +120,6 @@ def test_zero_points_dropped_unless_asked() -> None:
     assert decode_pointcloud2(msg, STAMP_NS, drop_zero=False).xyz.shape == (6, 3)
 
 
-@pytest.mark.parametrize(
-    ("name", "fmt", "datatype", "values", "expected_ns"),
-    [
-        # Ouster: uint32 ns since the scan stamp.
-        ("t", "<u4", 6, [0, 50_000, 99_999_999], [0, 50_000, 99_999_999]),
-        # Velodyne: float32 seconds relative to the stamp.
-        ("time", "<f4", 7, [-0.05, 0.0, 0.025], [-50_000_000, 0, 25_000_000]),
-        # Hesai/Livox: float64 seconds since the epoch (the stamp is ...0.25 s).
-        ("timestamp", "<f8", 8, [1_700_000_000.25, 1_700_000_000.26, 1_700_000_000.35],
-         [0, 10_000_000, 100_000_000]),
-    ],
-)
-def test_per_point_time_fields(
-    name: str, fmt: str, datatype: int, values: list[float], expected_ns: list[int]
-) -> None:
-    dt = np.dtype({"names": ["x", "y", "z", name], "formats": ["<f4", "<f4", "<f4", fmt],
-                   "offsets": [0, 4, 8, 16], "itemsize": 24})
-    arr = np.zeros(3, dt)
-    arr["x"], arr["y"], arr["z"] = XYZ[:, 0], XYZ[:, 1], XYZ[:, 2]
-    arr[name] = values
-    msg = cloud_msg(arr, [field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field(name, 16, datatype)])
-    c = decode_pointcloud2(msg, STAMP_NS)
-    assert c.t_offset_ns is not None and c.t_offset_ns.dtype == np.int64
-    # float32 seconds carry ~0.1 us of rounding; float64 epoch seconds ~0.2 us.
-    np.testing.assert_allclose(c.t_offset_ns, expected_ns, atol=1000)
-
-
 def _xyz_msg() -> SimpleNamespace:
     dt = np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3, "offsets": [0, 4, 8], "itemsize": 16})
     arr = np.zeros(3, dt)
