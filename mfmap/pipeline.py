@@ -112,7 +112,9 @@ def build(
     partial = _make_partial(out)
     try:
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
-            warnings += [f"ingest: {w}" for w in src.warnings]
+            # The ingest warnings are copied last: reading the barometer, the IMU or the scans
+            # can warn too, at any stage.
+            ingest_at = len(warnings)
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
             pool = None
@@ -127,6 +129,11 @@ def build(
 
                 pool = workers.enter_context(
                     worker_pool(max(cfg.mapping.workers, cfg.export.workers), warm=1))
+            # Every decision about how the sensors read (per-point time, beam order, mounts),
+            # taken once here, so the worker processes read the log the same way; config.yaml
+            # keeps the user's configuration, report.json the decisions.
+            given = cfg
+            cfg = cfg.model_copy(update={"ingest": src.resolve()})
             extrinsics = src.extrinsics()
             log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
 
@@ -191,8 +198,10 @@ def build(
                 "scans_exported": maps.scans,
                 "pressure_samples": len(pressure) if pressure is not None else 0,
             }
+            warnings[ingest_at:ingest_at] = [f"ingest: {w}" for w in src.warnings]
             report: dict[str, Any] = {
                 "log": str(log),
+                "ingest": src.report(),
                 "summary": {
                     "floors": len(seg.floors),
                     "transitions": len(seg.transitions),
@@ -207,7 +216,7 @@ def build(
             }
             with progress.stage("export", total=None):
                 summary = write_outputs(
-                    partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
+                    partial, seg, mapping, graph, trajectory, maps, report, dump_config(given),
                     title=f"mfmap build of {log.name}", html=cfg.export.html_report,
                     pool=pool, pressure_png=pressure_png, cabins=cabins,
                 )
