@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import Enum
@@ -283,7 +285,8 @@ def build(
     from mfmap.pipeline import build as run_build
     from mfmap.pipeline import render_summary
 
-    result = run_build(log, out, cfg, force=force, progress=RichProgress())
+    result = run_build(log, out, cfg, force=force, progress=RichProgress(),
+                       inputs=[config] if config is not None else [])
     console.print(render_summary(result))
     for warning in result.warnings:
         err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
@@ -338,7 +341,70 @@ def eval_cmd(
         raise typer.Exit(EXIT_THRESHOLD)
 
 
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM: unwinds the command like Ctrl-C (partial outputs removed, workers
+    stopped). A BaseException of its own, so typer does not turn it into 'Aborted!'."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signal.Signals(signum).name)
+
+
+def _interrupt(signum: int, _frame: object) -> None:
+    # Once: a second signal must not cut the clean-up short.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+# How long the clean-up may take before the process stops without it.
+STOP_GRACE_S = 1.5
+
+
+class _SignalWatch:
+    """Stops the process soon after SIGINT or SIGTERM even when its main thread cannot unwind.
+
+    Python runs a signal handler only between bytecodes: a main thread inside one long call of a
+    library (a factor-graph optimisation, an import) would keep the process, and its workers,
+    alive until the call returns. The C-level handler writes each signal to a wakeup pipe at
+    once; this thread reads it, gives the main thread STOP_GRACE_S to unwind and clean up, and
+    otherwise kills the workers and exits (what the build had begun is left marked, and the next
+    build removes it).
+    """
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        self._read_fd = read_fd
+        threading.Thread(target=self._watch, name="mfmap-signal-watch", daemon=True).start()
+
+    def _watch(self) -> None:
+        try:
+            data = os.read(self._read_fd, 1)
+        except OSError:
+            return
+        if self.done.wait(STOP_GRACE_S):
+            return
+        import multiprocessing
+
+        for child in multiprocessing.active_children():
+            child.kill()
+        signum = data[0] if data else int(signal.SIGTERM)
+        try:
+            name = signal.Signals(signum).name
+        except ValueError:
+            name = str(signum)
+        os.write(2, f"mfmap: interrupted ({name}) inside a long computation: stopped at once; "
+                    "the next build removes what this one had begun\n".encode())
+        os._exit(128 + signum)
+
+
 def main() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupt)
+    watch = _SignalWatch()
     try:
         app()
     except MfmapError as err:
@@ -348,6 +414,22 @@ def main() -> None:
         err_console.print(f"[red]mfmap: error:[/red] {escape(str(err))}", highlight=False,
                           soft_wrap=True)
         sys.exit(err.exit_code)
+    except Interrupted as stop:
+        watch.done.set()
+        err_console.print(f"[red]mfmap: interrupted[/red] ({stop}): nothing was left half-written",
+                          highlight=False)
+        # The clean-up is done; the interpreter's own (unloading open3d, GTSAM, TBB) took 3 to
+        # 10 s on a loaded machine. Only multiprocessing's finalizers run, which release the
+        # queues' semaphores (else the resource tracker warns of leaked ones).
+        if "multiprocessing" in sys.modules:
+            import multiprocessing.util
+
+            finalize = getattr(multiprocessing.util, "_exit_function", None)
+            if finalize is not None:
+                finalize()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + stop.signum)
 
 
 if __name__ == "__main__":

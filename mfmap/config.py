@@ -12,7 +12,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from mfmap.errors import ConfigError, MfmapError
+from mfmap.errors import ConfigError, MfmapError, read_text
 from mfmap.eval.config import EvalConfig
 from mfmap.export.config import ExportConfig
 from mfmap.floors.config import FloorsConfig
@@ -49,7 +49,11 @@ def _describe(err: ValidationError) -> str:
     where = ".".join(str(p) for p in first["loc"])
     if first["type"] == "extra_forbidden":
         return f"unknown key '{where}'"
-    return f"invalid value for '{where}': {first['msg']}"
+    msg = str(first["msg"]).removeprefix("Value error, ")
+    given = first.get("input")
+    if first["type"] != "value_error" and isinstance(given, (int, float, str)):
+        msg += f" (got {given!r:.40})"
+    return f"invalid value for '{where}': {msg}"
 
 
 def config_from_dict(data: dict[str, Any], source: Path | str = "<config>") -> MfmapConfig:
@@ -61,9 +65,10 @@ def config_from_dict(data: dict[str, Any], source: Path | str = "<config>") -> M
 
 def read_yaml_mapping(path: Path, error: type[MfmapError] = ConfigError) -> dict[str, Any]:
     """A config YAML file as a dict (an empty file is {}); problems raise `error` naming the file."""
+    text = read_text(path, error)
     try:
-        loaded = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
+        loaded = yaml.safe_load(text)
+    except yaml.YAMLError as err:
         raise error(f"not valid YAML ({err.__class__.__name__})", path) from err
     if loaded is None:
         return {}

@@ -12,6 +12,7 @@ class MfmapError(Exception):
 
     def __init__(self, message: str, path: Path | str | None = None) -> None:
         self.path = Path(path) if path is not None else None
+        self.message = message
         super().__init__(f"{path}: {message}" if path is not None else message)
 
 
@@ -41,3 +42,16 @@ class GroundTruthError(MfmapError):
 
 class RegressionFailure(MfmapError):
     """A regression run that found a metric worse than its tolerance."""
+
+
+def read_text(path: Path, error: type[MfmapError], encoding: str = "utf-8-sig") -> str:
+    """A text file's contents; a file that is not text (or cannot be read) raises `error`
+    naming it, never UnicodeDecodeError."""
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise error(f"cannot be read ({err.strerror or err.__class__.__name__})", path) from err
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as err:
+        raise error(f"not a text file (byte {err.start} is not UTF-8)", path) from err

@@ -10,10 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import resource
-import shutil
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor
@@ -23,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mfmap.atomic import disk_error, is_disk_error
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.errors import MissingDataError, OutputError
 from mfmap.mapping.geometry import (
@@ -35,6 +33,8 @@ from mfmap.mapping.geometry import (
     twist,
 )
 from mfmap.progress import NullProgress, Progress, StageProgress
+from mfmap.runfolder import RunFolder, input_size
+from mfmap.threads import unlimited_threads
 from mfmap.types import (
     F64,
     I64,
@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
     from mfmap.ingest.source import LogSource
+    from mfmap.mapping.config import MappingConfig
     from mfmap.types import MappingResult
 
 logger = logging.getLogger(__name__)
@@ -90,33 +91,39 @@ def build(
     cfg: MfmapConfig,
     force: bool = False,
     progress: Progress | None = None,
+    inputs: Sequence[Path] = (),
 ) -> BuildResult:
     """Build the building map of `log` into the folder `out`.
+
+    `out` is checked before any work (see `mfmap.runfolder.check_output`): never an input or a
+    folder holding one (`inputs`: the config file and other files the caller read), never the
+    working directory, and an existing one is replaced only with `force` when mfmap wrote it.
 
     Bit-for-bit reproducible only when the process called `mfmap.limit_threads()` before it
     imported this module (as `mfmap build` does); otherwise the report carries a warning.
     """
-    from mfmap.export.write import write_outputs
-    from mfmap.ingest import open_log
-    from mfmap.threads import unlimited_threads
-
     started = time.perf_counter()
     progress = progress or NullProgress()
     log, out = Path(log), Path(out)
-    _check_output(out, force)
+    # Checked before the heavy imports, so a refused output folder costs no time.
+    run = RunFolder.create(out, [log, *inputs], _log_folders(log), force, input_size(log))
+    partial = run.partial
     timings: dict[str, float] = {}
-    warnings: list[str] = []
+    warnings: list[str] = [f"build: {note}" for note in run.notes]
     threads = unlimited_threads()
     if threads is not None:
         warnings.append(f"build: {threads}")
-    partial = _make_partial(out)
     try:
+        from mfmap.export.write import write_outputs
+        from mfmap.ingest import open_log
+
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
             # The ingest warnings are copied last: reading the barometer, the IMU or the scans
             # can warn too, at any stage.
             ingest_at = len(warnings)
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
+            check_lidar_density(src, cfg.mapping)
             pool = None
             if max(cfg.mapping.workers, cfg.export.workers) > 1:
                 # With several floors, mapping (runs between rides) and the maps (floor groups)
@@ -224,9 +231,21 @@ def build(
         timings["export"] = time.perf_counter() - t0
         elapsed = time.perf_counter() - started
         _finish_report(partial, timings, elapsed, log_duration_s)
-        _commit(partial, out)
+        run.commit()
+    except OSError as err:
+        run.discard()
+        if is_disk_error(err):
+            raise disk_error(err, out) from err
+        raise
+    except OutputError as err:
+        run.discard()
+        if err.path is not None and partial in err.path.parents:
+            # The partial folder is gone: the user knows the output folder by its own name.
+            name = err.path.relative_to(partial)
+            raise OutputError(f"{err.message} (writing {name}; nothing was left behind)", out) from err
+        raise
     except BaseException:
-        shutil.rmtree(partial, ignore_errors=True)
+        run.discard()
         raise
     doc = summary.floors_doc
     return BuildResult(
@@ -280,6 +299,37 @@ def segment_floors(
     elif imu is not None and len(imu) > 1:
         motion = motion_from_imu(imu, cfg.floors)
     return pressure, segment_pressure(pressure, motion, cfg.floors)
+
+
+def check_lidar_density(src: LogSource, cfg: MappingConfig, scans: int = 20) -> None:
+    """Refuse a lidar whose scans hold too few usable points for scan registration (a radar's
+    cloud, or every return NaN), before any work: from the median of its first `scans` scans.
+
+    A sparse radar once ran through mapping to a trajectory that flew off and a grid too big to
+    allocate; an all-NaN lidar to an empty map.ply and no grids.
+    """
+    planar = Role.LIDAR not in src.roles
+    need = cfg.min_beams_per_scan if planar else cfg.min_points_per_scan
+    if need <= 0:
+        return
+    counts: list[int] = []
+    for _stamp, _frame, xyz, _t in _scans(src, planar):
+        rng = np.linalg.norm(xyz, axis=1)
+        counts.append(int(np.count_nonzero((rng > cfg.min_range_m) & (rng < cfg.max_range_m))))
+        if len(counts) >= scans:
+            break
+    if not counts:
+        return  # no scan at all: the mapping stage says so
+    median = float(np.median(counts))
+    if median < need:
+        topic = src.roles.get(Role.SCAN2D if planar else Role.LIDAR)
+        what = "returns" if planar else "points"
+        raise MissingDataError(
+            f"too few points per scan for lidar odometry: the first {len(counts)} scans of "
+            f"{topic} hold a median of {median:.0f} {what} between {cfg.min_range_m:g} and "
+            f"{cfg.max_range_m:g} m, at least {need} are needed (a radar, or a sensor whose "
+            f"returns are all NaN?); mapping.{'min_beams_per_scan' if planar else 'min_points_per_scan'} "
+            "sets the limit", src.path)
 
 
 def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float) -> str | None:
@@ -708,38 +758,14 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
 # ----- the output folder -------------------------------------------------------------------
 
 
-def _check_output(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise OutputError("exists and is not a folder", out)
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise OutputError("exists and is not empty (use --force to replace it)", out)
-    if not out.parent.exists():
-        try:
-            out.parent.mkdir(parents=True)
-        except OSError as err:
-            raise OutputError(f"cannot create the parent folder ({err.strerror})", out.parent) from err
-
-
-def _make_partial(out: Path) -> Path:
-    try:
-        partial = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(partial, 0o777 & ~mask)  # mkdtemp makes it private (0700)
-        return partial
-    except OSError as err:
-        raise OutputError(f"cannot write here ({err.strerror})", out.parent) from err
-
-
-def _commit(partial: Path, out: Path) -> None:
-    """Rename the finished partial folder into place (replacing an old OUT only now)."""
-    old: Path | None = None
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f"{out.name}.old-", dir=out.parent))
-        os.replace(out, old / out.name)
-    os.replace(partial, out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+def _log_folders(log: Path) -> list[Path]:
+    """The folders that are part of the log: a bag folder or a folder of .mcap files (also when
+    the log is named by its metadata.yaml or one of its .db3 files)."""
+    if log.is_dir():
+        return [log]
+    if log.suffix == ".db3" or log.name == "metadata.yaml":
+        return [log.parent]
+    return []
 
 
 def _finish_report(folder: Path, timings: dict[str, float], elapsed_s: float, log_s: float) -> None:
@@ -796,10 +822,20 @@ def render_summary(result: BuildResult) -> RenderableType:
     lines = Text(
         f"built {result.log.name} ({result.log_duration_s:.0f} s of log) in {result.elapsed_s:.1f} s: "
         f"{result.realtime_factor:.1f}x real time ({timing})\noutputs: {result.out}/ "
-        f"(map.ply, trajectory.tum, floors.json, floors/<id>/grid.pgm|yaml|png, floors/index.yaml, "
-        f"map.mcap, building.yaml, report.html)"
+        f"({', '.join(_outputs(result.files))})"
     )
     return Group(floors, transitions, factors, lines)
+
+
+def _outputs(files: Sequence[str]) -> list[str]:
+    """The outputs a build wrote, the floors' files once for all floors."""
+    top = [f for f in files if "/" not in f and not f.startswith(".")]
+    per_floor = sorted({f.split("/", 2)[2] for f in files if f.startswith("floors/") and f.count("/") == 2})
+    grids = [f.removeprefix("grid.") for f in per_floor if f.startswith("grid.")]
+    named = [f"floors/<id>/grid.{'|'.join(grids)}"] if grids else []
+    named += [f"floors/<id>/{f}" for f in per_floor if not f.startswith("grid.")]
+    named += [f for f in files if f.startswith("floors/") and f.count("/") == 1]  # floors/index.yaml
+    return top + named
 
 
 __all__ = ["BuildResult", "accumulate", "build", "optimise", "render_summary", "segment_floors"]

@@ -16,7 +16,7 @@ import time
 
 from mfmap.floors.config import FilterMethod, FloorsConfig
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import Leg, synthetic_trace
+from mfmap.sim.traces import Leg, synthetic_trace
 
 
 def hour_walk(hours: float) -> list[Leg]:

@@ -23,7 +23,7 @@ from mfmap.floors.config import FilterMethod, FloorsConfig
 from mfmap.floors.io import read_pressure_csv
 from mfmap.floors.motion import MotionEvidence, motion_from_odometry
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import building_walk, sim_barometer, synthetic_trace
+from mfmap.sim.traces import building_walk, sim_barometer, synthetic_trace
 from mfmap.types import FloorSegmentation, PressureSeries
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -65,3 +65,42 @@ def test_fast_preset_loads_and_changes_only_mapping() -> None:
     default = MfmapConfig()
     assert (cfg.mapping.voxel_size_m, cfg.mapping.map_voxel_size_m, cfg.mapping.scan_stride) == (0.4, 0.2, 2)
     assert cfg.model_copy(update={"mapping": default.mapping}) == default
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    # Each once failed only in a worker after the build started, or allocated without bound,
+    # or passed and gave a degraded map.
+    ("mapping: {voxel_size_m: 0}", r"'mapping\.voxel_size_m': Input should be greater than or equal to 0\.01 \(got 0\)"),
+    ("mapping: {voxel_size_m: -0.1}", r"'mapping\.voxel_size_m': Input should be greater"),
+    ("mapping: {voxel_size_m: 1.0e-9}", r"'mapping\.voxel_size_m': .* \(got 1e-09\)"),
+    ("mapping: {voxel_size_m: .nan}", r"'mapping\.voxel_size_m': Input should be a finite number"),
+    ("mapping: {min_range_m: 50}", r"'mapping': min_range_m \(50\) must be below max_range_m \(40\)"),
+    ("export: {grid_resolution_m: 1.0e-6}", r"'export\.grid_resolution_m': Input should be greater"),
+    ("export: {grid_resolution_m: 0.005, grid_max_range_m: 500}", r"makes even one scan's grid 4e\+10 cells"),
+    ("export: {grid_band_m: [1.8, 0.1]}", r"grid_band_m \(1\.8, 0\.1\) must be \(min, max\)"),
+    ("ingest: {max_cloud_mb: -1}", r"'ingest\.max_cloud_mb': Input should be greater than 0"),
+    ("graph: {interfloor_voxel_m: .inf}", r"'graph\.interfloor_voxel_m': Input should be a finite number"),
+    ("graph: {outlier_chi2_p: 1.5}", r"'graph\.outlier_chi2_p': Input should be less than 1"),
+    ("floors: {stop_vertical_speed_m_s: 0.5}", r"vertical speeds must be stop < min < max"),
+    ("mapping: {workers: 100000}", r"'mapping\.workers': Input should be less than or equal to 256"),
+    ("eval: {fscore_thresholds_m: [0.05, -1]}", r"must be one or more distances in \(0, 100\] m"),
+    ("ingest: {extrinsics: {lidar: {xyz: [0, 0, 500]}}}",
+     r"'ingest\.extrinsics\.lidar\.xyz\.2': Input should be less than or equal to 100"),
+    ("ingest: {extrinsics: {lidar: {rpy_deg: [0, .nan, 0]}}}",
+     r"'ingest\.extrinsics\.lidar\.rpy_deg\.1': Input should be a finite number"),
+])
+def test_values_that_would_fail_a_stage_are_refused_at_load(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text(text + "\n")
+    with pytest.raises(ConfigError, match=message) as err:
+        load_config(path)
+    assert "\n" not in str(err.value) and str(err.value).startswith(f"{path}: invalid value for ")
+
+
+def test_a_binary_config_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_bytes(bytes(range(256)) * 4)
+    res = subprocess.run([sys.executable, "-m", "mfmap.cli", "config", "--config", str(path)],
+                         capture_output=True, text=True)
+    assert res.returncode == 1
+    assert res.stderr.strip() == f"mfmap: error: {path}: not a text file (byte 128 is not UTF-8)"

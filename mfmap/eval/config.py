@@ -1,12 +1,12 @@
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
 class EvalConfig(BaseModel):
     """Scoring against ground truth."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     fscore_thresholds_m: list[float] = Field(
         default_factory=lambda: [0.05, 0.10, 0.20],
@@ -30,3 +30,10 @@ class EvalConfig(BaseModel):
         description="An estimated transition matches a ground-truth one when their time windows "
         "overlap or their midpoints are at most this far apart (s).",
     )
+
+    @field_validator("fscore_thresholds_m")
+    @classmethod
+    def _positive(cls, value: list[float]) -> list[float]:
+        if not value or not all(0.0 < v <= 100.0 for v in value):
+            raise ValueError(f"must be one or more distances in (0, 100] m, got {value}")
+        return value

@@ -7,6 +7,7 @@ naming the file, so the CLI prints one line.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.atomic import atomic_open
-from mfmap.errors import GroundTruthError, MfmapError, OutputError
+from mfmap.errors import GroundTruthError, MfmapError, OutputError, read_text
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -161,18 +162,17 @@ def read_tum(path: Path, error: type[MfmapError] = GroundTruthError) -> Trajecto
     if not path.is_file():
         raise error("file not found", path)
     rows: list[list[float]] = []
-    with path.open() as f:
-        for number, line in enumerate(f, start=1):
-            text = line.split("#", 1)[0].replace(",", " ").strip()
-            if not text:
-                continue
-            parts = text.split()
-            if len(parts) != 8:
-                raise error(f"line {number}: expected 8 values 't x y z qx qy qz qw', got {len(parts)}", path)
-            try:
-                rows.append([float(p) for p in parts])
-            except ValueError as err:
-                raise error(f"line {number}: not a number ({err})", path) from err
+    for number, line in enumerate(read_text(path, error).splitlines(), start=1):
+        text = line.split("#", 1)[0].replace(",", " ").strip()
+        if not text:
+            continue
+        parts = text.split()
+        if len(parts) != 8:
+            raise error(f"line {number}: expected 8 values 't x y z qx qy qz qw', got {len(parts)}", path)
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError as err:
+            raise error(f"line {number}: not a number ({err})", path) from err
     if not rows:
         raise error("no poses in the trajectory", path)
     mat = np.asarray(rows, dtype=np.float64)
@@ -205,7 +205,8 @@ def read_points_csv(path: Path) -> list[GtPoint]:
     if not path.is_file():
         raise GroundTruthError("file not found", path)
     # utf-8-sig: a spreadsheet's byte-order mark must not rename the first column.
-    with path.open(newline="", encoding="utf-8-sig") as f:
+    text = read_text(path, GroundTruthError, encoding="utf-8-sig")
+    with io.StringIO(text, newline="") as f:
         reader = csv.DictReader(f)
         header = [h.strip() for h in (reader.fieldnames or [])]
         missing = [c for c in POINTS_COLUMNS if c not in header]

@@ -101,7 +101,8 @@ class MapAccumulator:
         cloud.add(world)
         self.scans += 1
         grid = self.grids.setdefault(
-            floor_id, GridBuilder(cfg.grid_resolution_m, max_range_m=cfg.grid_max_range_m)
+            floor_id, GridBuilder(cfg.grid_resolution_m, max_range_m=cfg.grid_max_range_m,
+                                  max_bytes=cfg.max_grid_mb * 1e6)
         )
         if cfg.grid_level_band:
             # Heights in the robot's frame: a ground robot stands level on its floor, and an error

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class FilterMethod(str, Enum):
@@ -15,10 +15,10 @@ class FilterMethod(str, Enum):
 class FloorsConfig(BaseModel):
     """Barometer filtering, transition detection and floor clustering."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     temperature_k: float = Field(
-        295.0, gt=0, description="air temperature for pressure -> height (seed 000)"
+        295.0, ge=150.0, le=400.0, description="air temperature for pressure -> height (seed 000)"
     )
     min_floor_height_m: float = Field(
         2.0, gt=0, description="smallest height change that is a floor change"
@@ -80,3 +80,12 @@ class FloorsConfig(BaseModel):
     moving_accel_std_m_s2: float = Field(
         0.3, gt=0, description="IMU horizontal acceleration std (over 1 s) above which it is moving"
     )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FloorsConfig:
+        if not self.stop_vertical_speed_m_s < self.min_vertical_speed_m_s < self.max_vertical_speed_m_s:
+            raise ValueError(
+                "vertical speeds must be stop < min < max (stop_vertical_speed_m_s "
+                f"{self.stop_vertical_speed_m_s:g}, min_vertical_speed_m_s "
+                f"{self.min_vertical_speed_m_s:g}, max_vertical_speed_m_s {self.max_vertical_speed_m_s:g})")
+        return self

@@ -14,6 +14,8 @@ from scipy import linalg, ndimage, signal
 F64 = npt.NDArray[np.float64]
 
 MAD_TO_SIGMA = 1.4826
+# Cells of the uniform grid per sample at most (a trace with gaps needs a few).
+MAX_GRID_PER_SAMPLE = 50
 # Half-width of the cluster that is a floor's level (door steps are 0.4 m and more).
 LEVEL_MODE_HALF_WIDTH_M = 0.2
 
@@ -36,6 +38,14 @@ def resample_uniform(times_s: F64, values: F64) -> Grid:
     diffs = np.diff(times_s)
     dt_s = float(np.median(diffs[diffs > 0])) if np.any(diffs > 0) else 1.0
     n = int(np.floor((times_s[-1] - times_s[0]) / dt_s)) + 1
+    if n > MAX_GRID_PER_SAMPLE * times_s.shape[0] + 100_000:
+        # The grid is sized by the trace's duration: a trace that is mostly gaps must not
+        # allocate by its span (a stamp a year ahead once asked for 1.5e9 cells).
+        from mfmap.errors import MissingDataError
+
+        raise MissingDataError(
+            f"the barometer trace is mostly gaps: {times_s.shape[0]} samples over "
+            f"{times_s[-1] - times_s[0]:.0f} s at {dt_s:.3g} s intervals")
     grid_s = times_s[0] + dt_s * np.arange(n, dtype=np.float64)
     return Grid(float(times_s[0]), dt_s, np.interp(grid_s, times_s, values))
 

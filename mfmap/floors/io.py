@@ -156,7 +156,7 @@ def read_floors_json(path: Path) -> dict[str, Any]:
     """Load a floors.json / gt_floors.json, checking the keys every reader relies on."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, ValueError) as err:  # ValueError: JSONDecodeError and UnicodeDecodeError
         raise LogError(f"cannot read floors JSON ({err.__class__.__name__})", path) from err
     if not isinstance(data, dict) or not isinstance(data.get("floors"), list):
         raise LogError("expected an object with a 'floors' list", path)

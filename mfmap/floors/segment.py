@@ -517,7 +517,7 @@ def _clean_series(pressure: PressureSeries) -> tuple[I64, F64]:
     order = np.argsort(stamp_ns, kind="stable")
     stamp_ns, pressure_pa = stamp_ns[order], pressure_pa[order]
     # Duplicate stamps (re-published messages) would make a zero time step.
-    keep = np.concatenate(([True], np.diff(stamp_ns) > 0))
+    keep = np.concatenate((np.ones(min(1, stamp_ns.shape[0]), dtype=bool), np.diff(stamp_ns) > 0))
     stamp_ns, pressure_pa = stamp_ns[keep], pressure_pa[keep]
     if stamp_ns.shape[0] < MIN_SAMPLES:
         raise MissingDataError(

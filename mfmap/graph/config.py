@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class RobustKernel(str, Enum):
@@ -19,7 +19,7 @@ class BaroSource(str, Enum):
 class GraphConfig(BaseModel):
     """The building's factor graph; the switches are the ablations."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     barometer_factors: bool = Field(True, description="barometric height factors")
     elevator_continuity: bool = Field(True, description="x, y, yaw tight across a ride")
@@ -32,34 +32,34 @@ class GraphConfig(BaseModel):
         RobustKernel.HUBER, description="robust kernel for odometry edges (loops use Cauchy)"
     )
     loop_gate_m: float = Field(
-        1.5, description="drop a loop edge that disagrees with the mapping's map by more (m)"
+        1.5, gt=0.0, description="drop a loop edge that disagrees with the mapping's map by more (m)"
     )
-    loop_gate_deg: float = Field(15.0, description="... or by more than this rotation (deg)")
-    robust_k: float = Field(1.345, description="robust kernel width (whitened units)")
+    loop_gate_deg: float = Field(15.0, gt=0.0, description="... or by more than this rotation (deg)")
+    robust_k: float = Field(1.345, gt=0.0, description="robust kernel width (whitened units)")
     baro_source: BaroSource = Field(
         BaroSource.FILTERED,
         description="'filtered': the floors stage's filtered height trace (spikes and door/HVAC "
         "transients removed); 'raw': the pressure samples",
     )
     baro_sigma_m: float = Field(
-        0.5,
+        0.5, gt=0.0,
         description="barometric height noise per keyframe (m). More than one reading's noise "
         "(about 5 cm over the averaging window): door and HVAC steps and weather last many "
         "keyframes, so the keyframes' errors are not independent (0.15 m put stairs' top floor "
         "at 31 mm, 0.5 m at 20 mm)",
     )
-    baro_window_s: float = Field(0.5, description="pressure averaged +- this around a keyframe")
+    baro_window_s: float = Field(0.5, gt=0.0, le=3600.0, description="pressure averaged +- this around a keyframe")
     bias_random_walk_m_sqrt_s: float = Field(
-        0.01, description="barometer bias drift: sigma of the random walk per sqrt(second)"
+        0.01, gt=0.0, description="barometer bias drift: sigma of the random walk per sqrt(second)"
     )
-    height_tie_sigma_m: float = Field(0.02, description="same-floor z tie between keyframes")
-    elevator_sigma_xy_m: float = Field(0.3, description="x, y held through an elevator ride")
-    elevator_sigma_yaw_deg: float = Field(3.0, description="yaw held through an elevator ride")
+    height_tie_sigma_m: float = Field(0.02, gt=0.0, description="same-floor z tie between keyframes")
+    elevator_sigma_xy_m: float = Field(0.3, gt=0.0, description="x, y held through an elevator ride")
+    elevator_sigma_yaw_deg: float = Field(3.0, gt=0.0, description="yaw held through an elevator ride")
     transition_height: bool = Field(
         True, description="the floors stage's height change across each transition as a z factor"
     )
     transition_sigma_z_m: float = Field(
-        0.03, description="noise of the floors stage's height change, used where the fit below cannot run (m)"
+        0.03, gt=0.0, description="noise of the floors stage's height change, used where the fit below cannot run (m)"
     )
     transition_window_s: float = Field(
         120.0,
@@ -74,10 +74,10 @@ class GraphConfig(BaseModel):
         "integrated twice, zero velocity at both ends) as its own z factor",
     )
     imu_ride_gate_m: float = Field(
-        0.25, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
+        0.25, gt=0.0, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
     )
     gravity_sigma_deg: float = Field(
-        0.5, description="roll/pitch from gravity (robust, Huber); each keyframe's up, measured "
+        0.5, gt=0.0, description="roll/pitch from gravity (robust, Huber); each keyframe's up, measured "
         "over +- 1 s with the gyro's rotation taken out, is about 0.17 deg off in simulation"
     )
     gravity_minus_odometry: bool = Field(
@@ -85,27 +85,35 @@ class GraphConfig(BaseModel):
         description="take the robot's own acceleration (from the wheel odometry's twist) out of "
         "the IMU's mean specific force before it is read as gravity",
     )
-    prior_sigma: float = Field(1e-4, description="prior on the first keyframe (m, rad)")
-    interfloor_voxel_m: float = Field(0.1, description="voxel for inter-floor registration")
+    prior_sigma: float = Field(1e-4, gt=0.0, description="prior on the first keyframe (m, rad)")
+    interfloor_voxel_m: float = Field(0.1, ge=0.01, le=5.0, description="voxel for inter-floor registration")
     interfloor_band_m: tuple[float, float] = Field(
         (0.5, 1.5), description="height band above each floor used to register floors"
     )
     interfloor_min_fitness: float = Field(
-        0.2, description="reject an inter-floor match with fewer overlapping points"
+        0.2, ge=0.0, le=1.0, description="reject an inter-floor match with fewer overlapping points"
     )
     interfloor_ambiguity_ratio: float = Field(
-        0.9, description="reject when a distinct solution scores this close to the best"
+        0.9, ge=0.0, le=1.0, description="reject when a distinct solution scores this close to the best"
     )
     interfloor_max_correction_m: float = Field(
-        1.0, description="reject a correction larger than this (m) as implausible"
+        1.0, gt=0.0, description="reject a correction larger than this (m) as implausible"
     )
     interfloor_max_correction_deg: float = Field(
-        20.0, description="reject a yaw correction larger than this (deg) as implausible"
+        20.0, gt=0.0, description="reject a yaw correction larger than this (deg) as implausible"
     )
-    interfloor_sigma_xy_m: float = Field(0.01, description="inter-floor factor noise in x, y")
-    interfloor_sigma_yaw_deg: float = Field(0.05, description="inter-floor factor noise in yaw")
+    interfloor_sigma_xy_m: float = Field(0.01, gt=0.0, description="inter-floor factor noise in x, y")
+    interfloor_sigma_yaw_deg: float = Field(0.05, gt=0.0, description="inter-floor factor noise in yaw")
     outlier_chi2_p: float = Field(
-        0.999, description="a factor whose Mahalanobis residual exceeds this chi2 quantile is an outlier"
+        0.999, gt=0.0, lt=1.0, description="a factor whose Mahalanobis residual exceeds this chi2 quantile is an outlier"
     )
-    max_iterations: int = Field(100, description="Levenberg-Marquardt iterations")
+    max_iterations: int = Field(100, ge=1, le=100_000, description="Levenberg-Marquardt iterations")
     seed: int = Field(0, description="seed for RANSAC in inter-floor registration")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> GraphConfig:
+        lo, hi = self.interfloor_band_m
+        if not lo < hi:
+            raise ValueError(f"interfloor_band_m {self.interfloor_band_m} must be (min, max) "
+                             "with min < max")
+        return self

@@ -7,6 +7,8 @@ from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from typing import Any, BinaryIO, Protocol
 
+import numpy as np
+
 
 @dataclass
 class RawTopic:
@@ -53,6 +55,11 @@ class Backend(Protocol):
 
     def serialized(self, message: RawMessage) -> tuple[str, Any]:
         """(message encoding "cdr" | "ros1" | other, serialised bytes)."""
+        ...
+
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]] | None:
+        """Log times of the topic's messages in recording order (the order they were
+        written), from the indexes; None when only reading every message would tell."""
         ...
 
     def close(self) -> None: ...

@@ -9,6 +9,7 @@ from collections.abc import Collection, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Reader as Reader1
@@ -116,6 +117,33 @@ class RosbagsBackend:
                         if lo is not None:
                             add(str(name), int(lo), int(hi))
         return out
+
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]] | None:
+        """Log times of the topic's messages in recording order, from the indexes (None where
+        only reading every message would tell)."""
+        parts: list[np.ndarray[Any, np.dtype[np.int64]]] = []
+        if self._db_files:
+            for db in self._db_files:
+                try:
+                    con = _connect(db)
+                    rows = con.execute(
+                        "SELECT messages.timestamp FROM messages JOIN topics ON "
+                        "messages.topic_id = topics.id WHERE topics.name = ? ORDER BY messages.id",
+                        (topic,),
+                    ).fetchall()
+                    con.close()
+                except sqlite3.Error as err:
+                    raise LogError(f"cannot read sqlite3 storage: {err}", db) from err
+                parts.append(np.array([r[0] for r in rows], dtype=np.int64))
+            return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        for sub in self.reader.readers:
+            if not isinstance(sub, Reader1):
+                return None
+            entries = [e for c in sub.connections if c.topic == topic for e in sub.indexes.get(c.id, [])]
+            if entries:
+                table = np.array([(e.chunk_pos, e.offset, e.time) for e in entries], dtype=np.int64)
+                parts.append(table[np.lexsort((table[:, 1], table[:, 0])), 2])
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
 
     def iter_raw(
         self, topics: Collection[str], start_ns: int | None, end_ns: int | None

@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -8,7 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 class LidarTimeConfig(BaseModel):
     """How a lidar's per-point time is read; `auto` decides each part from the data."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     field: str = Field(
         "auto",
@@ -39,15 +39,19 @@ class LidarTimeConfig(BaseModel):
     spin: Literal["auto", "cw", "ccw"] = Field(
         "auto", description="azimuth deskew: spin direction seen from above the sensor")
 
+Metres = Annotated[float, Field(ge=-100.0, le=100.0)]
+
 
 class ExtrinsicConfig(BaseModel):
     """A sensor frame's pose in its parent frame, for a log that lacks the transform."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     parent: str = Field("base_link", description="the parent frame (the base, or a frame the "
                         "log's transforms reach)")
-    xyz: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="translation (m)")
+    # A mount further than this from the base is a typo (millimetres for metres), and would
+    # stretch every grid around it.
+    xyz: tuple[Metres, Metres, Metres] = Field((0.0, 0.0, 0.0), description="translation (m)")
     rpy_deg: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="roll, pitch, yaw (degrees; fixed axes x, y, z, as tf2)")
 
@@ -55,7 +59,7 @@ class ExtrinsicConfig(BaseModel):
 class IngestConfig(BaseModel):
     """Which topics play which role; by default chosen by message type."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     topics: dict[str, str] = Field(
         default_factory=dict,
@@ -70,16 +74,23 @@ class IngestConfig(BaseModel):
         True, description="drop lidar points at exactly (0, 0, 0), the no-return of many drivers"
     )
     max_cloud_mb: float = Field(
-        1024.0, description="a PointCloud2 claiming more than this many MB is rejected as corrupt"
+        1024.0, gt=0, le=1e6,
+        description="a PointCloud2 claiming more than this many MB is rejected as corrupt",
     )
     window_margin_s: float = Field(
-        2.0,
+        2.0, ge=0, le=3600,
         description="extra log time read around a requested stamp window (header stamps lag "
         "or lead the log time by up to this much)",
     )
     reorder_depth: int = Field(
-        8,
+        8, ge=1, le=100_000,
         description="records are re-sorted by header stamp within this many messages",
+    )
+    max_gap_s: float = Field(
+        600.0, gt=0, le=86_400,
+        description="a sensor stream whose stamps jump ahead by more than this, or step back, "
+        "has a clock that was reset: it is cut to its longest consistent part (the rest dropped, "
+        "with a warning), so a stamp a year ahead cannot make the log a year long",
     )
     lidar_time: LidarTimeConfig = Field(
         default_factory=LidarTimeConfig,

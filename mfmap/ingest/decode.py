@@ -319,15 +319,20 @@ def decode_points(
         x, y, z = recs["x"], recs["y"], recs["z"]
     # One squared range per point, instead of reductions along the short axis of (N, 3):
     # NaN fails both comparisons, inf fails the second, an exact (0, 0, 0) the first.
-    r2 = x * x
-    r2 += y * y
-    r2 += z * z
+    # In floats whatever the fields' types (a driver may send integer coordinates, or mix them);
+    # a garbage coordinate squares to inf, which the test below drops.
+    with np.errstate(over="ignore", invalid="ignore"):
+        r2 = np.multiply(x, x, dtype=np.result_type(x.dtype, y.dtype, z.dtype, np.float32))
+        r2 += y * y
+        r2 += z * z
     keep = (r2 < np.inf) & (r2 > 0) if drop_zero else np.isfinite(r2)
     sel = recs
     if not bool(keep.all()):
         # Gathered as opaque bytes: np.take on a structured dtype copies field by field.
         sel = np.take(recs.view(packed_bytes), np.flatnonzero(keep)).view(layout.span)
-    if "xyz" in names:
+    if sel.shape[0] == 0:
+        xyz = np.zeros((0, 3), np.float32)  # every return NaN: no bytes to view
+    elif "xyz" in names:
         # Copied as opaque 12-byte items, then viewed as floats: numpy copies a strided (N, 3)
         # float array element by element, several times slower.
         xyz_type, xyz_offset = layout.span.fields["xyz"][:2]  # type: ignore[index]
@@ -345,7 +350,7 @@ def decode_points(
     return DecodedPoints(xyz, intensity, ring, times)
 
 
-def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False) -> Scan2D:
+def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False, where: str = "") -> Scan2D:
     """sensor_msgs/LaserScan -> 2D points; NaN, inf and out-of-range readings dropped.
 
     Beam i is measured at stamp + i * time_increment (a negative increment: the stamp is the
@@ -355,7 +360,11 @@ def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False) -> Sc
     """
     ranges = np.asarray(msg.ranges, dtype=np.float32)
     i = np.arange(ranges.shape[0])
-    angles = float(msg.angle_min) + i * float(msg.angle_increment)
+    angle_min, increment = float(msg.angle_min), float(msg.angle_increment)
+    if not (math.isfinite(angle_min) and math.isfinite(increment)):
+        raise DecodeError(f"LaserScan with angle_min {angle_min} and angle_increment {increment}: "
+                          "no bearing for its ranges", where or None)
+    angles = angle_min + i * increment
     with np.errstate(invalid="ignore"):
         keep = (
             np.isfinite(ranges)
@@ -367,7 +376,8 @@ def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False) -> Sc
     xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1).astype(np.float32)
     t_offset = None
     increment_ns = float(msg.time_increment) * 1e9
-    if increment_ns != 0.0 and math.isfinite(increment_ns):
+    # A beam apart by a second or more is no per-beam time (a sweep of seconds).
+    if increment_ns != 0.0 and abs(increment_ns) < 1e9:
         beam = i[keep]
         if reversed_time:
             beam = ranges.shape[0] - 1 - beam

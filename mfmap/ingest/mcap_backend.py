@@ -18,11 +18,13 @@ import io
 import logging
 import os
 import struct
+from array import array
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import (
@@ -48,6 +50,15 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 # Records larger than this are corrupt lengths, not data (mcap's own default is 4 GiB, which a
 # damaged length field would make us try to allocate).
 RECORD_SIZE_LIMIT = 1 << 30
+
+
+def _size_limit(f: Any) -> int:
+    """No record is longer than the file that holds it: a damaged length field must not make a
+    read allocate up to the limit (420 MB for a 90-byte file)."""
+    try:
+        return max(1, min(RECORD_SIZE_LIMIT, os.fstat(f.fileno()).st_size))
+    except (OSError, AttributeError, io.UnsupportedOperation):
+        return RECORD_SIZE_LIMIT
 
 
 def check_mcap_file(path: Path) -> None:
@@ -78,6 +89,8 @@ class _FileIndex:
     in_order: bool = True
     damaged: str | None = None  # what went wrong, for the warning
     recovered: int = 0  # messages read before the damage
+    # Per channel, blocks of (chunk offset, offset in the chunk, log time): recording order.
+    times: dict[int, list[np.ndarray[Any, np.dtype[np.int64]]]] = field(default_factory=dict)
 
 
 class _Decoders:
@@ -174,6 +187,17 @@ class McapBackend:
             return iters[0]
         return heapq.merge(*iters, key=lambda m: m.log_time_ns)
 
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]] | None:
+        """Log times of the topic's messages in recording order (file, then place in it)."""
+        parts = []
+        for fi in self.files:
+            blocks = [b for cid, ch in fi.channels.items() if ch.topic == topic
+                      for b in fi.times.get(cid, [])]
+            if blocks:
+                rows = np.concatenate(blocks)
+                parts.append(rows[np.lexsort((rows[:, 1], rows[:, 0])), 2])
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
     def deserialize(self, message: RawMessage) -> Any:
         schema, channel, data = message.payload
         return self._decoders.get(schema, channel)(data)
@@ -222,7 +246,7 @@ def _index_file(path: Path) -> _FileIndex:
 def _usable_summary(f: io.BufferedReader) -> Summary | None:
     """The summary, if it is complete enough to answer queries without a full scan."""
     try:
-        summary = SeekingReader(f, record_size_limit=RECORD_SIZE_LIMIT).get_summary()
+        summary = SeekingReader(f, record_size_limit=_size_limit(f)).get_summary()
     except Exception:  # no readable footer/summary: scan the file instead
         return None
     if summary is None or not summary.chunk_indexes:
@@ -249,7 +273,7 @@ def _read_message_indexes(f: io.BufferedReader, summary: Summary, fi: _FileIndex
             for cid, offset in ci.message_index_offsets.items():
                 f.seek(offset)
                 record = next(StreamReader(f, skip_magic=True,
-                                           record_size_limit=RECORD_SIZE_LIMIT).records)
+                                           record_size_limit=_size_limit(f)).records)
                 if not isinstance(record, MessageIndex) or record.channel_id != cid:
                     return False
                 if not record.records:
@@ -257,6 +281,10 @@ def _read_message_indexes(f: io.BufferedReader, summary: Summary, fi: _FileIndex
                 times = [t for t, _ in record.records]
                 fi.counts[cid] = fi.counts.get(cid, 0) + len(times)
                 lo, hi = min(times), max(times)
+                block = np.empty((len(times), 3), dtype=np.int64)
+                block[:, 0] = ci.chunk_start_offset
+                block[:, 1:] = np.array(record.records, dtype=np.uint64).astype(np.int64)[:, ::-1]
+                fi.times.setdefault(cid, []).append(block)
                 fi.first_ns[cid] = min(fi.first_ns.get(cid, lo), lo)
                 fi.last_ns[cid] = max(fi.last_ns.get(cid, hi), hi)
     except Exception:  # a broken index: fall back to a sequential scan
@@ -271,12 +299,13 @@ def _read_message_indexes(f: io.BufferedReader, summary: Summary, fi: _FileIndex
 
 
 def _records(f: Any) -> Iterator[Any]:
-    return StreamReader(f, skip_magic=False, record_size_limit=RECORD_SIZE_LIMIT).records
+    return StreamReader(f, skip_magic=False, record_size_limit=_size_limit(f)).records
 
 
 def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
     fi = _FileIndex(path, indexed=False)
     last_time = -1
+    seen: dict[int, array[int]] = {}
     try:
         for record in _records(f):
             if isinstance(record, Schema):
@@ -288,6 +317,7 @@ def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
                 if cid not in fi.channels:
                     raise McapError(f"message on channel {cid} before its Channel record")
                 t = record.log_time
+                seen.setdefault(cid, array("q")).append(t)
                 fi.counts[cid] = fi.counts.get(cid, 0) + 1
                 fi.first_ns[cid] = min(fi.first_ns.get(cid, t), t)
                 fi.last_ns[cid] = max(fi.last_ns.get(cid, t), t)
@@ -300,6 +330,11 @@ def _scan_file(f: io.BufferedReader, path: Path) -> _FileIndex:
     except Exception as err:  # any damage ends the readable part of the file
         fi.damaged = f"{err.__class__.__name__}: {err}".rstrip(": ")
         logger.debug("%s: sequential read stopped: %s", path, err)
+    for cid, stamps in seen.items():
+        block = np.zeros((len(stamps), 3), dtype=np.int64)
+        block[:, 1] = np.arange(len(stamps))
+        block[:, 2] = np.frombuffer(stamps, dtype=np.int64)
+        fi.times[cid] = [block]
     return fi
 
 
@@ -347,7 +382,7 @@ def _iter_indexed(
                 continue
             try:
                 messages = list(_chunk_messages(f, item))
-            except (McapError, OSError, struct.error, KeyError, ValueError) as err:
+            except Exception as err:  # zstd's and lz4's errors on damaged data are their own
                 # The index promised this chunk: damage here is not a clean end of the log.
                 raise LogError(f"corrupt chunk at offset {chunk_offset}: {_first_line(err)}", fi.path) from err
             for pos, cid, log_time, data in messages:

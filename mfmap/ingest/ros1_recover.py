@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
+import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from mfmap.errors import DecodeError, LogError
@@ -197,6 +198,11 @@ class Ros1RecoveryBackend:
                 f.seek(cstart)
                 self._chunk_cache = (chunk_pos, _decompress(compression, f.read(clen)))
         return self._chunk_cache[1][start : start + length]
+
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]]:
+        """Log times of the topic's messages in recording order."""
+        wanted = {cid for cid, c in self._scan.conns.items() if c.topic == topic}
+        return np.array([m[0] for m in self._scan.messages if m[2] in wanted], dtype=np.int64)
 
     def iter_raw(
         self, topics: Collection[str], start_ns: int | None, end_ns: int | None

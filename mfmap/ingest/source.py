@@ -55,6 +55,7 @@ from mfmap.ingest.pointmsg import (
     points_of,
     stamp_ns_of_scalars,
 )
+from mfmap.ingest.timecheck import LogClock, StampGuard, series_order
 from mfmap.types import (
     ROLE_BY_TYPE,
     Cloud,
@@ -95,6 +96,8 @@ _TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 _NEEDED_FRAMES = (Role.LIDAR, Role.SCAN2D, Role.IMU)
 # Scans sampled to decide how a lidar's per-point time reads.
 TIME_SAMPLE_SCANS = 12
+# Streams whose clock the time check follows (tf_static's messages hold whenever they came).
+_TIMED_ROLES = (Role.LIDAR, Role.SCAN2D, Role.BARO, Role.IMU, Role.ODOM)
 
 
 @dataclass
@@ -185,10 +188,33 @@ def _open_backend(path: Path) -> Backend:
             from mfmap.ingest.ros1_recover import Ros1RecoveryBackend
 
             return Ros1RecoveryBackend(path, str(err).split(": ", 2)[-1])
-    if path.suffix == ".db3" or path.name == "metadata.yaml":
+    if path.name == "metadata.yaml":
         return _open_backend(path.parent)
+    if path.suffix == ".db3":
+        return _open_db3(path)
     kind = {".mcap": "an MCAP file", ".bag": "a ROS 1 bag"}.get(path.suffix, "a known log format")
     raise LogError(f"not {kind} (unrecognised content at the start of the file)", path)
+
+
+def _open_db3(path: Path) -> Backend:
+    """A .db3 file named on its own: its bag when the metadata.yaml beside it lists it, else
+    that file alone (never another log that happens to lie in the same folder)."""
+    from mfmap.ingest.sqlite_recover import Ros2SqliteRecoveryBackend
+
+    meta = path.parent / "metadata.yaml"
+    if meta.is_file() and path.name in _metadata_files(meta):
+        return _open_backend(path.parent)
+    return Ros2SqliteRecoveryBackend(path, [path], None,
+                                     "a .db3 file on its own: no metadata.yaml lists it")
+
+
+def _metadata_files(meta: Path) -> list[str]:
+    """The file names metadata.yaml lists (also for storage `_ros2_metadata` does not open)."""
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+        return [Path(str(p)).name for p in info.get("relative_file_paths") or []]
+    except Exception:
+        return []
 
 
 def _open_ros2_bag(path: Path) -> Backend:
@@ -222,8 +248,20 @@ def _ros2_metadata(meta: Path) -> tuple[str, list[str] | None]:
         info = doc["rosbag2_bagfile_information"]
     except Exception as err:
         raise LogError(f"not a ROS 2 bag metadata file ({err.__class__.__name__})", meta) from err
-    for entry in info.get("topics_with_message_count") or []:
-        topic = entry.get("topic_metadata", {})
+    if not isinstance(info, dict):
+        raise LogError("not a ROS 2 bag metadata file (rosbag2_bagfile_information is not a "
+                       "mapping)", meta)
+    entries = info.get("topics_with_message_count") or []
+    paths = info.get("relative_file_paths") or []
+    for key, value in (("topics_with_message_count", entries), ("relative_file_paths", paths)):
+        if not isinstance(value, list):
+            raise LogError(f"not a ROS 2 bag metadata file ({key} is not a list: {value!r:.40})",
+                           meta)
+    for entry in entries:
+        topic = entry.get("topic_metadata", {}) if isinstance(entry, dict) else None
+        if not isinstance(topic, dict):
+            raise LogError("not a ROS 2 bag metadata file (an entry of topics_with_message_count "
+                           f"without topic_metadata: {entry!r:.40})", meta)
         fmt = topic.get("serialization_format", "cdr")
         if fmt != "cdr":
             raise LogError(
@@ -235,10 +273,7 @@ def _ros2_metadata(meta: Path) -> tuple[str, list[str] | None]:
     if storage not in ("mcap", "sqlite3"):
         raise LogError(f"unknown storage '{storage}' (expected sqlite3 or mcap)", meta)
     # Early rosbag2 versions wrote the bag folder into the "relative" paths: keep the name only.
-    files = [
-        str(p) if (meta.parent / str(p)).is_file() else Path(str(p)).name
-        for p in info.get("relative_file_paths") or []
-    ]
+    files = [str(p) if (meta.parent / str(p)).is_file() else Path(str(p)).name for p in paths]
     if info.get("compression_mode") or not files:
         return storage, None
     missing = [f for f in files if not (meta.parent / f).is_file()]
@@ -308,22 +343,30 @@ class LogSource:
         )
         self.warnings: list[str] = [*backend.warnings, *notes]
         by_topic = {topic: role for role, topic in self.roles.items()}
-        self.topics: list[TopicInfo] = [
-            TopicInfo(
-                name=t.name,
-                msgtype=t.msgtype,
-                count=t.count,
-                first_ns=t.first_ns,
-                last_ns=t.last_ns,
-                role=by_topic.get(t.name),
-                candidate_for=ROLE_BY_TYPE.get(t.msgtype),
-            )
-            for t in sorted(raw.values(), key=lambda t: t.name)
-        ]
-        firsts = [t.first_ns for t in self.topics if t.first_ns is not None]
-        lasts = [t.last_ns for t in self.topics if t.last_ns is not None]
-        self.start_ns: int = min(firsts) if firsts else 0
-        self.end_ns: int = max(lasts) if lasts else 0
+        self._clock = LogClock(getattr(backend, "log_times", lambda _topic: None),
+                               [t for r, t in self.roles.items() if r in _TIMED_ROLES],
+                               config.max_gap_s, str(path))
+        self.warnings += self._clock.warnings
+        self.topics: list[TopicInfo] = []
+        for t in sorted(raw.values(), key=lambda t: t.name):
+            count, first, last = t.count, t.first_ns, t.last_ns
+            if t.name in self._clock.kept:  # what the time check kept of it
+                first, last, count = self._clock.kept[t.name]
+            self.topics.append(TopicInfo(
+                name=t.name, msgtype=t.msgtype, count=count,
+                first_ns=first if count else None, last_ns=last if count else None,
+                role=by_topic.get(t.name), candidate_for=ROLE_BY_TYPE.get(t.msgtype)))
+        self._counts = {t.name: t.count for t in self.topics}
+        spans = [(t.first_ns, t.last_ns) for t in self.topics
+                 if t.first_ns is not None and t.last_ns is not None]
+        if self._clock.span is not None:
+            # Topics the check does not follow count only where they agree with the log's span.
+            lo = self._clock.span[0] - self._clock.max_gap_ns
+            hi = self._clock.span[1] + self._clock.max_gap_ns
+            spans = [(a, b) for a, b in spans if a >= lo and b <= hi] or spans
+        self.start_ns: int = min(a for a, _ in spans) if spans else 0
+        self.end_ns: int = max(b for _, b in spans) if spans else 0
+        self._guards: dict[str, StampGuard] = {}
         self._extrinsics: Extrinsics | None = None
         self._frame_sources: dict[str, str] = {}
         self._small: dict[Role, _Rows] | None = None
@@ -357,6 +400,11 @@ class LogSource:
     def close(self) -> None:
         self._backend.close()
 
+    def _iter_raw(self, topics: list[str], start_ns: int | None, end_ns: int | None
+                  ) -> Iterator[RawMessage]:
+        """The backend's messages less those the time check dropped."""
+        return self._clock.filter(self._backend.iter_raw(topics, start_ns, end_ns))
+
     def _warn(self, text: str) -> None:
         # Reading a stream twice must not say the same thing twice.
         if text not in self.warnings:
@@ -383,7 +431,7 @@ class LogSource:
     def count(self, role: Role | str) -> int:
         """Message count of the topic chosen for a role (0 if none)."""
         topic = self.topic_of(role)
-        return self._backend.topics[topic].count if topic is not None else 0
+        return self._counts.get(topic, 0) if topic is not None else 0
 
     def _require(self, role: Role, what: str) -> str:
         topic = self.roles.get(role)
@@ -424,7 +472,7 @@ class LogSource:
         lo = None if start_ns is None else start_ns - margin
         hi = None if end_ns is None else end_ns + margin
         backend = self._backend
-        for raw in backend.iter_raw([topic], lo, hi):
+        for raw in self._iter_raw([topic], lo, hi):
             msg = parse(raw)
             stamp = stamp_ns_of(msg, raw.log_time_ns)
             if (start_ns is not None and stamp < start_ns) or (end_ns is not None and stamp > end_ns):
@@ -449,7 +497,7 @@ class LogSource:
         topic = self.topic_of(role_or_topic)
         if topic is None:
             return iter(())
-        return self._backend.iter_raw([topic], start_ns, end_ns)
+        return self._iter_raw([topic], start_ns, end_ns)
 
     def clouds(self, start_ns: int | None = None, end_ns: int | None = None) -> Iterator[Cloud]:
         """Lidar scans in stamp order, decoded one at a time (never all in memory), each point's
@@ -461,21 +509,25 @@ class LogSource:
         timing = self.lidar_timing()
         wanted = (timing.field,) if isinstance(timing, TimeSpec) else ()
         start = timing.sweep_start_ns if timing is not None else 0
+        guard = self._guard(topic)
+        clouds: Iterator[Cloud]
         if not start:
             clouds = (cloud_of(pts, stamp, frame, timing)
-                      for stamp, _log, frame, pts in self._points(topic, start_ns, end_ns, wanted))
-            return self._reorder(clouds)
-        # Each scan timed from its sweep's start (the window asked for is in those times too).
-        lo = None if start_ns is None else start_ns - start
-        hi = None if end_ns is None else end_ns - start
-        moved = (_from_sweep_start(cloud_of(pts, stamp, frame, timing), start)
-                 for stamp, _log, frame, pts in self._points(topic, lo, hi, wanted))
-        return self._reorder(moved)
+                      for stamp, _log, frame, pts in self._points(topic, start_ns, end_ns, wanted, guard))
+        else:
+            # Each scan timed from its sweep's start (the window asked for is in those times too).
+            lo = None if start_ns is None else start_ns - start
+            hi = None if end_ns is None else end_ns - start
+            clouds = (_from_sweep_start(cloud_of(pts, stamp, frame, timing), start)
+                      for stamp, _log, frame, pts in self._points(topic, lo, hi, wanted, guard))
+        return self._guarded(topic, guard.forwards(self._reorder(clouds), lambda c: c.stamp_ns))
 
     def _points(self, topic: str, start_ns: int | None, end_ns: int | None,
-                time_fields: tuple[str, ...] | None) -> Iterator[tuple[int, int, str, DecodedPoints]]:
+                time_fields: tuple[str, ...] | None, guard: StampGuard | None = None
+                ) -> Iterator[tuple[int, int, str, DecodedPoints]]:
         """(stamp, log time, frame, kept points) of each scan in log order: a PointCloud2, or a
-        point message parsed from the log's own definition (Livox CustomMsg)."""
+        point message parsed from the log's own definition (Livox CustomMsg). With `guard`, the
+        scans whose header stamp jumped away from their log time are left out."""
         where = f"{self.path} topic {topic}"
         max_bytes = int(self.config.max_cloud_mb * 1e6)
         drop_zero = self.config.drop_zero_points
@@ -484,14 +536,21 @@ class LogSource:
             "auto", "none") else ()
         candidates = tuple(dict.fromkeys((*extra, *TIME_FIELDS)))
         if self._backend.topics[topic].msgtype in POINT_MESSAGE_TYPES:
-            for raw in backend.iter_raw([topic], *self._window(start_ns, end_ns)):
-                encoding, data = backend.serialized(raw)
-                parser = self._point_message_parser(raw, encoding, where)
-                msg = parser.parse(data)
-                stamp = stamp_ns_of_scalars(msg.scalars) or int(raw.log_time_ns)
-                if not self._in_window(stamp, start_ns, end_ns):
-                    continue
-                yield stamp, raw.log_time_ns, _frame(msg), points_of(msg, drop_zero)
+
+            def parsed() -> Iterator[tuple[int, int, PointMessage]]:
+                for raw in self._iter_raw([topic], *self._window(start_ns, end_ns)):
+                    encoding, data = backend.serialized(raw)
+                    parser = self._point_message_parser(raw, encoding, where)
+                    msg = parser.parse(data)
+                    stamp = stamp_ns_of_scalars(msg.scalars) or int(raw.log_time_ns)
+                    if self._in_window(stamp, start_ns, end_ns):
+                        yield stamp, int(raw.log_time_ns), msg
+
+            messages = parsed()
+            if guard is not None:
+                messages = guard.by_offset(messages, lambda m: m[0], lambda m: m[1])
+            for stamp, log_time, msg in messages:
+                yield stamp, log_time, _frame(msg), points_of(msg, drop_zero)
             return
 
         def parse(raw: RawMessage) -> Any:
@@ -501,7 +560,11 @@ class LogSource:
                 return parse_pointcloud2(data, encoding, where)
             return backend.deserialize(raw)
 
-        for rec in self._records(topic, start_ns, end_ns, parse):
+        records = self._records(topic, start_ns, end_ns, parse)
+        if guard is not None:
+            # Checked before the decode: a scan whose stamp jumped is never decoded.
+            records = guard.by_offset(records, lambda r: r.stamp_ns, lambda r: r.log_time_ns)
+        for rec in records:
             layout, buf = pointcloud2_layout(rec.msg, where, max_bytes, candidates)
             pts = decode_points(layout, buf, drop_zero, time_fields)
             yield rec.stamp_ns, rec.log_time_ns, str(rec.msg.header.frame_id), pts
@@ -538,12 +601,15 @@ class LogSource:
         cfg = self.config.lidar_time
         where = f"{self.path} topic {topic}"
         samples: list[tuple[int, int, str, DecodedPoints]] = []
-        for item in self._points(topic, None, None, None):
+        # Through a guard of their own: a scan whose stamp jumped must not decide, nor be
+        # counted twice in the warnings.
+        sampling = StampGuard(int(self.config.max_gap_s * 1e9))
+        for item in self._points(topic, None, None, None, sampling):
             if len(item[3].xyz) >= 10:
                 samples.append(item)
             if len(samples) >= TIME_SAMPLE_SCANS:
                 break
-        info = self._backend.topics[topic]
+        info = next(t for t in self.topics if t.name == topic)  # what the time check kept
         fallback = (int((info.last_ns - info.first_ns) / (info.count - 1))
                     if info.count > 1 and info.first_ns is not None and info.last_ns is not None
                     and info.last_ns > info.first_ns else 100_000_000)
@@ -619,7 +685,7 @@ class LogSource:
     def _lidar_fields(self, topic: str) -> list[tuple[str, int, str, int]]:
         """(name, offset, type, count) of the lidar's point fields, from its first message."""
         msgtype = self._backend.topics[topic].msgtype
-        for raw in self._backend.iter_raw([topic], None, None):
+        for raw in self._iter_raw([topic], None, None):
             encoding, data = self._backend.serialized(raw)
             if msgtype in POINT_MESSAGE_TYPES:
                 parser = self._point_message_parser(raw, encoding, f"{self.path} topic {topic}")
@@ -637,8 +703,44 @@ class LogSource:
         beam's time in the order `scan2d_beam_time` decided."""
         topic = self._require(Role.SCAN2D, "2D laser scanner")
         reverse = self.scan2d_beam_time() == "reversed"
-        return (decode_laserscan(r.msg, r.stamp_ns, reverse)
-                for r in self.messages(topic, start_ns, end_ns))
+        guard = self._guard(topic)
+        records = guard.by_offset(self._records(topic, start_ns, end_ns, self._backend.deserialize),
+                                  lambda r: r.stamp_ns, lambda r: r.log_time_ns)
+        scans = guard.forwards(self._reorder(records), lambda r: r.stamp_ns)
+        where = f"{self.path} topic {topic}"
+        return self._guarded(topic, (decode_laserscan(r.msg, r.stamp_ns, reverse, where)
+                                     for r in scans))
+
+    def _guard(self, topic: str) -> StampGuard:
+        guard = self._guards.get(topic)
+        if guard is None:
+            guard = self._guards[topic] = StampGuard(int(self.config.max_gap_s * 1e9))
+        return guard
+
+    def _guarded(self, topic: str, items: Iterator[_Stamped]) -> Iterator[_Stamped]:
+        """`items`, and once they are read (or abandoned) the guard's count in the warnings."""
+        try:
+            yield from items
+        finally:
+            self._note_guard(topic)
+
+    def _note_guard(self, topic: str) -> None:
+        where = f"{self.path} topic {topic}"
+        text = self._guards[topic].describe(where)
+        if text is None:
+            return
+        # One line per topic, its counts growing as more of the stream is read.
+        self.warnings[:] = [w for w in self.warnings if not w.startswith(f"{where}: dropped ")]
+        self.warnings.append(text)
+
+    def stream_warnings(self) -> list[str]:
+        """What reading the streams found and dropped (for a worker to hand back)."""
+        out = []
+        for topic, guard in self._guards.items():
+            text = guard.describe(f"{self.path} topic {topic}")
+            if text is not None:
+                out.append(text)
+        return out
 
     def scan2d_beam_time(self) -> str:
         """"as_stated" or "reversed": which way the LaserScan's beams run in time (config, else
@@ -719,7 +821,12 @@ class LogSource:
             turn = float(yaw.at(np.array([float(b.stamp_ns)]))[0] - yaw.at(np.array([float(a.stamp_ns)]))[0])
             shift = planar.shift(a.stamp_ns, b.stamp_ns) if planar is not None else np.zeros(2)
             pairs.append(ScanPair(a.msg, a.stamp_ns, b.msg, b.stamp_ns, turn, shift))
-        return check_sweep(pairs, laser_to_base, yaw, velocity_of)
+        try:
+            return check_sweep(pairs, laser_to_base, yaw, velocity_of)
+        except DecodeError as err:
+            if err.path is not None:
+                raise
+            raise DecodeError(err.message, f"{self.path} topic {topic}") from err
 
     # ----- small series ----------------------------------------------------------------------
 
@@ -737,7 +844,7 @@ class LogSource:
         direct: dict[str, bool] = {}  # topic -> the direct parser agreed on its first message
         tf_topics = self._tf_topics_all() if self._tf is None and self._tf_read is None else []
         tf = _TfRead(self)
-        for raw in self._backend.iter_raw([*topics, *tf_topics], None, None):
+        for raw in self._iter_raw([*topics, *tf_topics], None, None):
             if raw.topic not in topics:
                 tf.add(raw)
                 continue
@@ -800,10 +907,15 @@ class LogSource:
             raise MissingDataError(f"no barometer messages on {topic}", self.path)
         stamps = np.array(rows.stamps, dtype=np.int64)
         values = np.array(rows.values, dtype=np.float64).reshape(-1)
+        order = self._series_order(topic, stamps)
+        stamps, values = stamps[order], values[order]
         finite = np.isfinite(values)
         if not finite.all():
             self._warn(f"{topic}: dropped {int((~finite).sum())} non-finite pressure readings")
             stamps, values = stamps[finite], values[finite]
+        if stamps.shape[0] == 0:
+            raise DecodeError(f"every barometer reading is NaN or infinite ({len(rows.stamps)} "
+                              "messages): the sensor gave no pressure", f"{self.path} topic {topic}")
         unit = self._pressure_unit(values, topic)
         self._pressure_unit_seen = unit
         if unit.to_pa != 1.0:
@@ -812,8 +924,19 @@ class LogSource:
                 f"{topic}: pressure published in {unit.name} (median {np.median(values) / unit.to_pa:.2f}),"
                 f" not Pa as sensor_msgs/FluidPressure specifies; converted to Pa"
             )
-        order = np.argsort(stamps, kind="stable")
-        return PressureSeries(stamp_ns=stamps[order], pressure_pa=values[order], frame_id=rows.frame)
+        return PressureSeries(stamp_ns=stamps, pressure_pa=values, frame_id=rows.frame)
+
+    def _series_order(self, topic: str, stamps: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+        """Indices that sort a small stream by header stamp, its inconsistent stamps and
+        repeated ones left out (with a warning)."""
+        order, check, repeats = series_order(stamps, int(self.config.max_gap_s * 1e9))
+        where = f"{self.path} topic {topic}"
+        if check.dropped:
+            self._warn(check.describe(f"{where} (header stamps)", int(stamps.min()),
+                                      self.config.max_gap_s))
+        if repeats:
+            self._warn(f"{where}: dropped {repeats} messages stamped like the one before them")
+        return order
 
     def _pressure_unit(self, values: np.ndarray[Any, Any], topic: str) -> PressureUnit:
         fixed = {"Pa": 1.0, "hPa": 100.0, "kPa": 1000.0}
@@ -835,7 +958,7 @@ class LogSource:
             return None
         stamps = np.array(rows.stamps, dtype=np.int64)
         v = np.array(rows.values, dtype=np.float64)
-        order = np.argsort(stamps, kind="stable")
+        order = self._series_order(self.roles[Role.IMU], stamps)
         v = v[order]
         quat = v[:, 6:10].copy()
         # orientation_covariance[0] == -1 means "no orientation estimate" (sensor_msgs/Imu).
@@ -854,7 +977,7 @@ class LogSource:
         if rows is None or not rows.stamps:
             return None
         stamps = np.array(rows.stamps, dtype=np.int64)
-        order = np.argsort(stamps, kind="stable")
+        order = self._series_order(self.roles[Role.ODOM], stamps)
         v = np.array(rows.values, dtype=np.float64)[order]
         return OdomSeries(
             stamp_ns=stamps[order],
@@ -881,7 +1004,7 @@ class LogSource:
         if self._tf is None:
             tf = _TfRead(self)
             topics = self._tf_topics_all()
-            for raw in self._backend.iter_raw(topics, None, None) if topics else iter(()):
+            for raw in self._iter_raw(topics, None, None) if topics else iter(()):
                 tf.add(raw)
             self._tf = tf.result()
         return self._tf
@@ -967,7 +1090,7 @@ class LogSource:
         if role in _SMALL_ROLES and self._small is not None:
             rows = self._small.get(role)
             return rows.frame if rows is not None and rows.stamps else None
-        for raw in self._backend.iter_raw([topic], None, None):
+        for raw in self._iter_raw([topic], None, None):
             if self._backend.topics[topic].msgtype in POINT_MESSAGE_TYPES:
                 encoding, data = self._backend.serialized(raw)
                 parser = self._point_message_parser(raw, encoding, f"{self.path} topic {topic}")
@@ -1155,12 +1278,33 @@ def _check_point_parser(parser: PointMessageParser, generic: Any, data: Any, whe
 def open_log(path: Path | str, config: IngestConfig | None = None) -> LogSource:
     """Open a log: a `.mcap` file, a ROS 1 `.bag`, a ROS 2 bag folder or a folder of `.mcap`."""
     path = Path(path)
+    config = config or IngestConfig()
     backend = _open_backend(path)
     try:
-        return LogSource(path, backend, config or IngestConfig())
+        _check_one_recording(backend, path, config.max_gap_s)
+        return LogSource(path, backend, config)
     except BaseException:
         backend.close()
         raise
+
+
+def _check_one_recording(backend: Backend, path: Path, max_gap_s: float) -> None:
+    """Several .mcap files are one log only when they follow on from (or overlap) each other:
+    two unrelated recordings in one folder must not become one log years long."""
+    spans = []
+    for fi in getattr(backend, "files", []):
+        if fi.first_ns:
+            spans.append((min(fi.first_ns.values()), max(fi.last_ns.values()), fi.path.name))
+    spans.sort()
+    end, last_name = None, ""
+    for first, last, name in spans:
+        if end is not None and first - end > max_gap_s * 1e9:
+            raise LogError(
+                f"holds .mcap files of different recordings: {name} starts "
+                f"{(first - end) / 1e9:.0f} s after {last_name} ends (more than ingest.max_gap_s, "
+                f"{max_gap_s:g} s); build each recording on its own", path)
+        if end is None or last > end:
+            end, last_name = last, name
 
 
 @dataclass

@@ -280,9 +280,11 @@ class Ros2SqliteRecoveryBackend:
         covered = (int(self._stamp.max()) - int(self._stamp.min())) / 1e9 if n else 0.0
         of = f" of {expected_count}" if expected_count is not None else ""
         why = "; ".join(damages) or reason or "no metadata.yaml"
+        # Storage without its metadata.yaml is not damaged, only read the slow way.
+        what = ("sqlite3 storage read row by row" if not damages and reason and "metadata.yaml" in reason
+                else "damaged or truncated sqlite3 storage")
         self.warnings = [
-            f"{path}: damaged or truncated sqlite3 storage ({why}); recovered {n}{of} messages "
-            f"covering {covered:.1f} s of log time"
+            f"{path}: {what} ({why}); recovered {n}{of} messages covering {covered:.1f} s of log time"
         ]
         if n == 0 and not self.topics:
             self.close()
@@ -293,6 +295,13 @@ class Ros2SqliteRecoveryBackend:
     @property
     def damaged(self) -> bool:
         return any(s.damage for s in self.scans)
+
+    def log_times(self, topic: str) -> np.ndarray[Any, np.dtype[np.int64]]:
+        """Log times of the topic's messages in recording order (file, then row id)."""
+        if topic not in self._topic_names:
+            return np.zeros(0, dtype=np.int64)
+        idx = np.flatnonzero(self._topic == self._topic_names.index(topic))
+        return np.asarray(self._stamp[idx[np.lexsort((self._id[idx], self._file[idx]))]], dtype=np.int64)
 
     def iter_raw(
         self, topics: Collection[str], start_ns: int | None, end_ns: int | None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class MotionPrior(str, Enum):
@@ -19,13 +19,22 @@ class MotionPrior(str, Enum):
 class MappingConfig(BaseModel):
     """Per-floor lidar odometry, keyframes and loop closure."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    voxel_size_m: float = Field(0.25, description="downsampling voxel of each scan for registration")
-    map_voxel_size_m: float = Field(0.15, description="voxel of the local map")
-    keyframe_voxel_size_m: float = Field(0.1, description="voxel of the cloud kept per keyframe")
-    min_range_m: float = Field(0.4, description="drop returns closer than this (robot body)")
-    max_range_m: float = Field(40.0, description="drop returns farther than this")
+    voxel_size_m: float = Field(0.25, ge=0.01, le=5.0, description="downsampling voxel of each scan for registration")
+    map_voxel_size_m: float = Field(0.15, ge=0.01, le=5.0, description="voxel of the local map")
+    keyframe_voxel_size_m: float = Field(0.1, ge=0.01, le=5.0, description="voxel of the cloud kept per keyframe")
+    min_range_m: float = Field(0.4, ge=0.0, le=100.0, description="drop returns closer than this (robot body)")
+    max_range_m: float = Field(40.0, gt=0.0, le=1000.0, description="drop returns farther than this")
+    min_points_per_scan: int = Field(
+        300, ge=0,
+        description="a 3D lidar whose scans hold fewer points than this within min_range_m - "
+        "max_range_m (the median of its first scans) is refused: scan registration needs "
+        "structure, which a radar's or a very sparse sensor's few returns do not give (0: try)",
+    )
+    min_beams_per_scan: int = Field(
+        30, ge=0, description="the same for a 2D laser scanner (LaserScan), in returns per scan",
+    )
     scan_stride: int = Field(
         3, ge=1,
         description="register every n-th 3D scan; the others get a pose from the motion prior",
@@ -44,18 +53,18 @@ class MappingConfig(BaseModel):
         "visit's cabin scans 8 cm off",
     )
     motion_prior: MotionPrior = Field(MotionPrior.AUTO, description="initial guess per scan")
-    icp_max_iterations: int = Field(30, description="ICP iterations per scan")
+    icp_max_iterations: int = Field(30, ge=1, le=1000, description="ICP iterations per scan")
     icp_tolerance: float = Field(
-        1e-4, description="ICP stops when fitness and RMSE change less than this (relative)"
+        1e-4, gt=0.0, lt=1.0, description="ICP stops when fitness and RMSE change less than this (relative)"
     )
     icp_initial_threshold_m: float = Field(
-        1.0, description="correspondence distance until the adaptive threshold has samples"
+        1.0, gt=0.0, le=100.0, description="correspondence distance until the adaptive threshold has samples"
     )
     icp_min_motion_m: float = Field(
-        0.0, description="model corrections below this do not feed the adaptive threshold"
+        0.0, ge=0.0, le=10.0, description="model corrections below this do not feed the adaptive threshold"
     )
     icp_min_threshold_m: float = Field(
-        0.4, description="the adaptive correspondence threshold never goes below this"
+        0.4, ge=0.0, le=100.0, description="the adaptive correspondence threshold never goes below this"
     )
     icp_max_gyro_disagreement_deg: float = Field(
         0.2, ge=0.0,
@@ -102,13 +111,13 @@ class MappingConfig(BaseModel):
         "robot turns out of the cabin, was 2.7-3.6 cm off in x (two-floor seed 0, "
         "three-floor-revisit seed 1), now 0.1-1.3 cm",
     )
-    local_map_keyframes: int = Field(30, description="keyframes in the sliding local map")
-    local_map_radius_m: float = Field(30.0, description="local map keeps keyframes within this")
-    keyframe_distance_m: float = Field(1.0, description="new keyframe after this much travel")
-    keyframe_angle_deg: float = Field(15.0, description="new keyframe after this much rotation")
-    odom_sigma_m: float = Field(0.01, description="odometry edge noise per keyframe (m)")
-    odom_sigma_per_m: float = Field(0.005, description="odometry edge noise growing per metre")
-    odom_sigma_deg: float = Field(0.15, description="odometry edge rotation noise (deg)")
+    local_map_keyframes: int = Field(30, ge=1, le=10_000, description="keyframes in the sliding local map")
+    local_map_radius_m: float = Field(30.0, gt=0.0, le=10_000.0, description="local map keeps keyframes within this")
+    keyframe_distance_m: float = Field(1.0, gt=0.0, le=1000.0, description="new keyframe after this much travel")
+    keyframe_angle_deg: float = Field(15.0, gt=0.0, le=360.0, description="new keyframe after this much rotation")
+    odom_sigma_m: float = Field(0.01, gt=0.0, description="odometry edge noise per keyframe (m)")
+    odom_sigma_per_m: float = Field(0.005, ge=0.0, description="odometry edge noise growing per metre")
+    odom_sigma_deg: float = Field(0.15, gt=0.0, description="odometry edge rotation noise (deg)")
     stairs_sigma_z_m: float = Field(
         0.05,
         gt=0,
@@ -131,30 +140,30 @@ class MappingConfig(BaseModel):
         "registrations' turn)",
     )
     loop_closure: bool = Field(True, description="search and verify loop closures (same floor)")
-    loop_radius_m: float = Field(4.0, description="position candidates within this distance")
+    loop_radius_m: float = Field(4.0, ge=0.0, le=10_000.0, description="position candidates within this distance")
     loop_min_separation: int = Field(
-        15, description="within a visit, candidates at least this many keyframes apart"
+        15, ge=1, description="within a visit, candidates at least this many keyframes apart"
     )
     loop_descriptor_threshold: float = Field(
-        0.25, description="Scan Context distance below which a place is a candidate"
+        0.25, ge=0.0, le=1.0, description="Scan Context distance below which a place is a candidate"
     )
     loop_submap_keyframes: int = Field(
-        2, description="a loop target is its keyframe plus this many neighbours on each side"
+        2, ge=0, le=1000, description="a loop target is its keyframe plus this many neighbours on each side"
     )
-    loop_max_candidates: int = Field(3, description="candidates verified per keyframe")
-    loop_min_fitness: float = Field(0.55, description="accept a loop with this overlap or more")
-    loop_max_rmse_m: float = Field(0.06, description="accept a loop with this inlier RMSE or less")
+    loop_max_candidates: int = Field(3, ge=0, le=1000, description="candidates verified per keyframe")
+    loop_min_fitness: float = Field(0.55, ge=0.0, le=1.0, description="accept a loop with this overlap or more")
+    loop_max_rmse_m: float = Field(0.06, gt=0.0, description="accept a loop with this inlier RMSE or less")
     loop_ambiguity_m: float = Field(
-        0.05, description="perturbed starts must agree within this, else the match is ambiguous"
+        0.05, gt=0.0, description="perturbed starts must agree within this, else the match is ambiguous"
     )
     loop_min_information_ratio: float = Field(
-        0.02, description="smallest/largest eigenvalue of the loop's translation information"
+        0.02, ge=0.0, le=1.0, description="smallest/largest eigenvalue of the loop's translation information"
     )
     loop_max_correction_m: float = Field(
-        1.0, description="reject a loop that moves the keyframe more than this from odometry"
+        1.0, gt=0.0, description="reject a loop that moves the keyframe more than this from odometry"
     )
-    loop_sigma_m: float = Field(0.01, description="loop edge noise (m)")
-    loop_sigma_deg: float = Field(0.3, description="loop edge noise (deg)")
+    loop_sigma_m: float = Field(0.01, gt=0.0, description="loop edge noise (m)")
+    loop_sigma_deg: float = Field(0.3, gt=0.0, description="loop edge noise (deg)")
     loop_sigma_growth_per_m: float = Field(
         1.0, ge=0.0,
         description="a loop's sigmas grow by this factor per metre between its keyframes: "
@@ -163,7 +172,7 @@ class MappingConfig(BaseModel):
         "worst visits: 4.9 -> 4.3 cm on stairs, 5.2 -> 4.2 cm on three-floor-revisit)",
     )
     level_window_s: float = Field(
-        10.0, ge=0.0,
+        10.0, le=3600.0, ge=0.0,
         description="after stairs, level the pose by the mean accelerometer over this long "
         "(0: off)",
     )
@@ -172,11 +181,11 @@ class MappingConfig(BaseModel):
         (2.4, 2.4), description="cabin box (x, y in the robot's heading frame during the ride)"
     )
     cabin_window_s: float = Field(
-        30.0, description="filter cabin returns this long before and after a ride"
+        30.0, ge=0.0, le=3600.0, description="filter cabin returns this long before and after a ride"
     )
     seed: int = Field(0, description="seed for any random choice (perturbed loop checks)")
     workers: int = Field(
-        2, ge=1,
+        2, ge=1, le=256,
         description="processes mapping the runs of visits between elevator rides in parallel "
         "(1: one pass in the build's process; >1 gives slightly different, still reproducible "
         "results)",
@@ -187,3 +196,12 @@ class MappingConfig(BaseModel):
         "each stair walk's end, so a log without elevator rides maps in parallel too (stairs: "
         "mapping 19.6 -> 11.9 s); its results then differ from one pass's as after a ride",
     )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> MappingConfig:
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError(f"min_range_m ({self.min_range_m:g}) must be below max_range_m "
+                             f"({self.max_range_m:g}): no return would be kept")
+        if not all(0.0 < side <= 50.0 for side in self.cabin_size_m):
+            raise ValueError(f"cabin_size_m {self.cabin_size_m} must be two sizes in (0, 50] m")
+        return self

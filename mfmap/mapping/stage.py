@@ -930,6 +930,8 @@ def _map_chunk(job: _ChunkJob) -> _ChunkResult:
             if chunk.stop_in_visit is not None and visit >= chunk.stop_in_visit:
                 break  # the next chunk's first scan: counted there
             scans += visit >= chunk.first_visit or not chunk.after_stairs  # not the priming scans
+        # What this process's reading dropped (scans with broken stamps) is the build's to say.
+        mapper.warnings += [w for w in src.stream_warnings() if w not in mapper.warnings]
     mapper.finish_run()
     return _ChunkResult(mapper.keyframes, mapper.edges, mapper.scan_poses, mapper._pending,
                         chunk.first_visit, mapper.state.pose, scans, mapper.counters(),

@@ -3,19 +3,61 @@
 `start_worker` must run before a worker imports open3d: TBB sizes its thread pool from the CPU
 affinity and OpenMP from OMP_NUM_THREADS when the library loads, and one thread per worker is
 what makes every run give the same bits.
+
+A worker never outlives the build: it dies with its parent (a kill -9 of the build included),
+and a build that stops on an error or a signal terminates its workers instead of waiting for
+their jobs.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
+import sys
+import threading
 from collections.abc import Iterator
 from concurrent.futures import Executor
 from typing import Any
 
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
-def start_worker(cpus: Any) -> None:
-    """Take one CPU from the `cpus` queue, pin this process to it, use one OpenMP thread."""
+
+def _die_with_parent(parent_pid: int | None) -> None:
+    """End this process when its parent ends, however the parent ends.
+
+    On Linux the kernel sends SIGKILL at the parent's death (prctl PR_SET_PDEATHSIG, which
+    fires when the parent's thread that started this process ends: the pool starts every
+    worker from the thread that made it, see `worker_pool`). Everywhere, a thread also waits on
+    the sentinel multiprocessing gives a spawned child (a pipe whose other end only the parent
+    holds) and exits the process when it closes.
+    """
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if parent_pid is not None and os.getppid() != parent_pid:
+        os._exit(1)  # the parent died before the signal was asked for
+    import multiprocessing
+    import multiprocessing.connection
+
+    parent = multiprocessing.parent_process()
+    sentinel = getattr(parent, "sentinel", None)
+    if sentinel is not None:
+        def watch() -> None:
+            multiprocessing.connection.wait([sentinel])
+            os._exit(1)
+
+        threading.Thread(target=watch, name="mfmap-parent-watch", daemon=True).start()
+
+
+def start_worker(cpus: Any, parent_pid: int | None = None) -> None:
+    """Die with the parent; leave Ctrl-C to it (it stops the workers); take one CPU from the
+    `cpus` queue, pin this process to it, use one OpenMP thread."""
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ["OMP_NUM_THREADS"] = "1"
     cpu = cpus.get()
     if cpu is not None and hasattr(os, "sched_setaffinity"):
@@ -47,14 +89,18 @@ def warm_up() -> None:
     import mfmap.mapping.stage  # noqa: F401
 
 
+def _started() -> None:
+    """The job that starts a worker without warming it up."""
+
+
 @contextlib.contextmanager
 def worker_pool(workers: int, warm: bool | int = True) -> Iterator[Executor]:
-    """`workers` pinned processes; `warm` of them (True: all) started now and warmed up while
-    the caller goes on, the others when the first jobs come (a spawn pool starts a process per
-    job until it has them all).
+    """`workers` pinned processes, all started now from this thread; `warm` of them (True: all)
+    warmed up while the caller goes on, the others import what their first job needs.
 
     One pool serves every parallel stage of a build (mapping, then the maps' second pass), so
-    each worker pays its start-up (~1 s: a spawned interpreter importing open3d) once.
+    each worker pays its start-up (~1 s: a spawned interpreter importing open3d) once. When the
+    block raises (an error, Ctrl-C, SIGTERM) the workers are terminated, not waited for.
     """
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
@@ -64,8 +110,32 @@ def worker_pool(workers: int, warm: bool | int = True) -> Iterator[Executor]:
     cpus = context.Queue()
     for cpu in worker_cpus(workers):
         cpus.put(cpu)
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=start_worker,
-                             initargs=(cpus,)) as pool:
-        for _ in range(workers if warm is True else min(int(warm), workers)):
-            pool.submit(warm_up)  # submitted together, so each goes to a new process
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=start_worker,
+                               initargs=(cpus, os.getpid()))
+    try:
+        n_warm = workers if warm is True else min(int(warm), workers)
+        # Submitted together, so each goes to a new process, started by this thread (which the
+        # workers' death signal is tied to) and not later by whichever thread submits a job.
+        for k in range(workers):
+            pool.submit(warm_up if k < n_warm else _started)
         yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_pool(pool: Any, grace_s: float = 2.0) -> None:
+    """Terminate a ProcessPoolExecutor's workers now (SIGTERM, SIGKILL after `grace_s`)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.terminate()
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(grace_s)
+            if process.is_alive():
+                process.kill()
+                process.join(grace_s)
+    with contextlib.suppress(Exception):
+        pool.shutdown(wait=False, cancel_futures=True)

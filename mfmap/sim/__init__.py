@@ -16,14 +16,14 @@ __all__ = ["SCENARIOS", "ScenarioSpec", "SimResult", "simulate", "source_digest"
 
 
 def source_digest() -> str:
-    """Short hash of the simulator's source (and mfmap/baro.py): a cache key that changes
-    whenever the simulated output may change."""
+    """Short hash of the simulator's source: a cache key that changes whenever the simulated
+    output may change (the simulator imports nothing of the estimator's that could change it)."""
     import hashlib
     from pathlib import Path
 
     here = Path(__file__).parent
     h = hashlib.sha256()
-    for path in sorted([*here.glob("*.py"), here.parent / "baro.py"]):
+    for path in sorted(here.glob("*.py")):
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:10]

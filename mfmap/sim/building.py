@@ -16,8 +16,11 @@ The plan (world frame = the robot's base at its start, metres) is about 30 x 20 
      -16 +-----------------+--------+----+-------------------------------+
         -4                7.5     12.5   16                              26  x
 
-Corridors, outer walls, the elevator shaft, the stairwell and pillars are the same on every
-floor; rooms inside the blocks, their doorways and furniture are drawn per floor from the seed.
+That block is one `BuildingSpec` (`office_block`): a building is its footprint, its storeys
+(their heights may differ), blocks of rooms between corridors, the elevator shaft, the stairwell
+(straight flights, or switch-back flights with half landings) and pillars. Corridors, outer walls,
+the elevator shaft, the stairwell and pillars are the same on every floor; rooms inside the
+blocks, their doorways and furniture are drawn per floor from the seed.
 """
 
 from __future__ import annotations
@@ -75,7 +78,6 @@ SIDE_LIMITS: dict[tuple[str, str], tuple[float, float]] = {
 }
 PILLARS_XY = ((5.0, 0.6), (10.0, 0.6), (15.0, 0.6), (20.0, 0.6), (10.0, -9.5), (21.0, -6.5))
 PILLAR_HALF = 0.2
-_OUTER_SIDES = {("n", Y_MAX), ("s", Y_MIN), ("w", X_MIN), ("e", X_MAX)}
 
 
 class Kind:
@@ -177,68 +179,266 @@ def _wall(
 
 
 @dataclass(frozen=True)
+class Block:
+    """A block of rooms between corridors: rooms along its longer side, one doorway each on a
+    side that faces a corridor (`sides`; `limits` narrows a side to the stretch that does)."""
+
+    name: str
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+    sides: str
+    limits: tuple[tuple[str, float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class ShaftSpec:
+    """The elevator: shaft, cabin and landing doors. `door` is the side of the shaft the doors
+    are on; `front` is where the robot waits for the cabin."""
+
+    center: tuple[float, float]
+    front: tuple[float, float]
+    door: str = "s"
+    outer_half_m: float = SHAFT_OUTER_HALF
+    wall_m: float = SHAFT_WALL_M
+    cabin_half_m: float = CABIN_HALF
+    cabin_wall_m: float = CABIN_WALL_M
+    cabin_height_m: float = CABIN_HEIGHT_M
+    door_half_m: float = ELEVATOR_DOOR_HALF
+    door_height_m: float = ELEVATOR_DOOR_HEIGHT_M
+    speed_m_s: float = 1.0
+    acc_m_s2: float = 0.5
+
+    @property
+    def door_normal(self) -> tuple[float, float]:
+        """Unit vector from the shaft's centre out through its doors."""
+        return {"s": (0.0, -1.0), "n": (0.0, 1.0), "w": (-1.0, 0.0), "e": (1.0, 0.0)}[self.door]
+
+
+@dataclass(frozen=True)
+class StairwellSpec:
+    """A stairwell of two lanes along x inside `rect` (x0, x1, y0, y1).
+
+    straight: one flight per storey from `flight_x0`, in lane a (going +x) from even floors and
+    lane b (going -x) from odd ones, a doorway at each end (`doors_x`).
+    switchback: two half flights per storey with a landing between: from the floor landing
+    (west of `flight_x0`, or east of it when `reverse`) up lane a, the lane by the door, to the
+    half landing at the far end, back up lane b to the next floor's landing; one doorway per
+    floor, in the landing's stretch of the door wall.
+    """
+
+    kind: str = "straight"
+    rect: tuple[float, float, float, float] = (STAIR_X0, STAIR_X1, STAIR_Y0, STAIR_Y1)
+    flight_x0: float = STAIR_FLIGHT_X0
+    lane_a: tuple[float, float] = LANE_A_Y
+    lane_b: tuple[float, float] = LANE_B_Y
+    divider: tuple[float, float] = (-14.06, -13.94)
+    door_side: str = "n"
+    doors_x: tuple[tuple[float, float], ...] = STAIR_DOOR_X
+    walls: str = "nw"  # its own walls; the others are the building's outer walls
+    reverse: bool = False
+    rise_m: float = STAIR_RISE_M
+    tread_m: float = STAIR_TREAD_M
+    waist_m: float = 0.2  # a switch-back flight is a slab this thick under its steps
+    approach_m: float = 1.0  # the route meets the stairwell this far outside its door wall
+
+    @property
+    def door_wall_y(self) -> float:
+        return self.rect[3] if self.door_side == "n" else self.rect[2]
+
+    @property
+    def outward(self) -> float:
+        """+1 when the door wall faces +y."""
+        return 1.0 if self.door_side == "n" else -1.0
+
+
+@dataclass(frozen=True)
+class Corridor:
+    """A corridor's centre line (for planning routes): along `axis` at the other coordinate `c`
+    from a0 to a1, `width_m` wide."""
+
+    axis: str
+    c: float
+    a0: float
+    a1: float
+    width_m: float
+
+
+@dataclass(frozen=True)
+class BuildingSpec:
+    """Everything that makes one building: footprint, storeys, blocks, the elevator and the
+    stairwell, pillars, the corridors a route may use and its checkpoints."""
+
+    name: str
+    footprint: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max (inner faces)
+    storey_heights_m: tuple[float, ...]  # per floor, slab top to the next slab top
+    blocks: tuple[Block, ...]
+    shaft: ShaftSpec
+    stairwell: StairwellSpec
+    pillars: tuple[tuple[float, float], ...] = ()
+    pillar_half_m: float = PILLAR_HALF
+    # Walls of the stretches carved out of blocks for the shaft and the stairwell:
+    # (axis, a0, a1, c) full storey height on every floor.
+    extra_walls: tuple[tuple[str, float, float, float], ...] = ()
+    corridors: tuple[Corridor, ...] = ()
+    checkpoints: tuple[tuple[str, float, float], ...] = ()
+
+    @property
+    def n_floors(self) -> int:
+        return len(self.storey_heights_m)
+
+
+def office_block(
+    n_floors: int, floor_height_m: float, storey_heights_m: Sequence[float] | None = None, switchback: bool = False
+) -> BuildingSpec:
+    """The 30 x 20 m office block of the module docstring, with equal storeys (or the given
+    ones) and straight flights (or switch-back ones: from the west landing up the north lane to
+    a half landing at the east end, back up the south lane; one door per floor)."""
+    storeys = tuple(storey_heights_m) if storey_heights_m is not None else (floor_height_m,) * n_floors
+    stairwell = StairwellSpec()
+    if switchback:
+        stairwell = StairwellSpec(
+            kind="switchback", lane_a=LANE_B_Y, lane_b=LANE_A_Y, doors_x=(STAIR_DOOR_X[0],)
+        )
+    return BuildingSpec(
+        name="office-block" + ("-switchback" if switchback else ""),
+        footprint=(X_MIN, X_MAX, Y_MIN, Y_MAX),
+        storey_heights_m=storeys,
+        blocks=tuple(
+            Block(name, x0, x1, y0, y1, sides, tuple((s, *lim) for (b, s), lim in SIDE_LIMITS.items() if b == name))
+            for name, x0, x1, y0, y1, sides in BLOCKS
+        ),
+        shaft=ShaftSpec(center=SHAFT_CENTER, front=(SHAFT_CENTER[0], -0.6)),
+        stairwell=stairwell,
+        pillars=PILLARS_XY,
+    )
+
+
+@dataclass(frozen=True)
 class StairGeometry:
-    n_risers: int
+    n_risers: int  # per flight
     rise_m: float
     run_m: float  # horizontal length of one flight
+    x0: float = STAIR_FLIGHT_X0
 
     @property
     def flight_x1(self) -> float:
-        return STAIR_FLIGHT_X0 + self.run_m
+        return self.x0 + self.run_m
+
+
+def flight_geometry(stair: StairwellSpec, storey_m: float) -> StairGeometry:
+    """The flights of one storey: one of the storey's height, or two of half of it."""
+    climb = storey_m if stair.kind == "straight" else storey_m / 2
+    n = max(2, round(climb / stair.rise_m))
+    return StairGeometry(n, climb / n, (n - 1) * stair.tread_m, stair.flight_x0)
+
+
+def _rotate_box(box: Box, quarter_turns: int) -> Box:
+    """A box turned about the z axis by quarter_turns * 90 deg (exact: only swaps and signs)."""
+    (x0, y0, z0), (x1, y1, z1) = box.lo, box.hi
+    for _ in range(quarter_turns % 4):
+        x0, y0, x1, y1 = -y1, x0, -y0, x1
+    return Box((x0, y0, z0), (x1, y1, z1), box.kind)
 
 
 class Building:
     """A seeded building: floors of boxes, an elevator cabin, ray-casting scenes, GT samples."""
 
-    def __init__(self, n_floors: int, floor_height_m: float, start_floor: int, seed: int) -> None:
-        self.n_floors = n_floors
-        self.floor_height_m = floor_height_m
+    def __init__(self, spec: BuildingSpec, start_floor: int, seed: int) -> None:
+        self.spec = spec
+        self.n_floors = spec.n_floors
+        self.storeys_m = spec.storey_heights_m
+        self.uniform = len(set(self.storeys_m)) == 1
         self.start_floor = start_floor
         self.seed = seed
-        n_risers = max(2, round(floor_height_m / STAIR_RISE_M))
-        self.stairs = StairGeometry(
-            n_risers, floor_height_m / n_risers, (n_risers - 1) * STAIR_TREAD_M
-        )
-        self.floors = [
-            FloorGeometry(k, (k - start_floor) * floor_height_m) for k in range(n_floors)
-        ]
+        self.flights = [flight_geometry(spec.stairwell, h) for h in self.storeys_m]
+        self.stairs = self.flights[0]
+        if self.uniform:
+            h = self.storeys_m[0]
+            elevations = [(k - start_floor) * h for k in range(self.n_floors)]
+        else:
+            base = sum(self.storeys_m[:start_floor])
+            elevations = [sum(self.storeys_m[:k]) - base for k in range(self.n_floors)]
+        self.floors = [FloorGeometry(k, e) for k, e in enumerate(elevations)]
         rng = np.random.default_rng([seed, 7919])
         for floor in self.floors:
             self._build_floor(floor, rng)
         self._scenes: dict[Any, Any] = {}
 
     # -- geometry -------------------------------------------------------------------------
+    @property
+    def floor_height_m(self) -> float:
+        """The storey height of a building whose storeys are all equal (an error otherwise)."""
+        if not self.uniform:
+            raise ValueError(f"storeys differ: {self.storeys_m}")
+        return self.storeys_m[0]
+
     def elevation(self, floor_id: int) -> float:
         return self.floors[floor_id].elevation_m
 
+    def storey_height(self, floor_id: int) -> float:
+        """From this floor's slab top to the next one's (the top floor's: to the roof's)."""
+        return self.storeys_m[floor_id]
+
     def floor_of_height(self, z_m: float) -> int:
         """The floor whose elevation is nearest to z (for ground-truth labels)."""
-        return int(np.clip(round(z_m / self.floor_height_m) + self.start_floor, 0, self.n_floors - 1))
+        if self.uniform:
+            return int(np.clip(round(z_m / self.storeys_m[0]) + self.start_floor, 0, self.n_floors - 1))
+        return int(self.floor_index_of_heights(np.array([z_m]))[0])
+
+    def floor_index_of_heights(self, z_m: F64) -> npt.NDArray[np.int64]:
+        """The nearest floor of each height."""
+        elev = np.array([f.elevation_m for f in self.floors])
+        return np.argmin(np.abs(np.asarray(z_m)[:, None] - elev[None, :]), axis=1).astype(np.int64)
 
     def floor_of_points(self, z_m: F64) -> npt.NDArray[np.int32]:
         """The floor whose space (its slab's top up to the next slab's underside) holds z."""
         e0 = self.floors[0].elevation_m
-        k = np.floor((z_m - e0 + 0.01) / self.floor_height_m)
+        if self.uniform:
+            k = np.floor((z_m - e0 + 0.01) / self.storeys_m[0])
+            return np.clip(k, 0, self.n_floors - 1).astype(np.int32)
+        elev = np.array([f.elevation_m for f in self.floors])
+        k = np.searchsorted(elev, np.asarray(z_m) + 0.01, side="right") - 1
         return np.clip(k, 0, self.n_floors - 1).astype(np.int32)
 
     @property
+    def shaft_center(self) -> tuple[float, float]:
+        return self.spec.shaft.center
+
+    @property
+    def cabin_half_m(self) -> float:
+        return self.spec.shaft.cabin_half_m
+
+    @property
+    def stair_rect(self) -> tuple[float, float, float, float]:
+        return self.spec.stairwell.rect
+
+    @property
     def shaft_rect(self) -> tuple[float, float, float, float]:
-        cx, cy = SHAFT_CENTER
-        return (cx - SHAFT_OUTER_HALF, cx + SHAFT_OUTER_HALF, cy - SHAFT_OUTER_HALF, cy + SHAFT_OUTER_HALF)
+        cx, cy = self.spec.shaft.center
+        a = self.spec.shaft.outer_half_m
+        return (cx - a, cx + a, cy - a, cy + a)
 
     def stair_hole(self, floor_id: int) -> tuple[float, float, float, float] | None:
-        """The slab opening above the flight that comes up from the floor below."""
+        """The slab opening above the flights that come up from the floor below."""
         if floor_id == 0:
             return None
-        lane = LANE_A_Y if (floor_id - 1) % 2 == 0 else LANE_B_Y
-        return (STAIR_FLIGHT_X0, self.stairs.flight_x1, lane[0], lane[1])
+        st = self.spec.stairwell
+        below = self.flights[floor_id - 1]
+        if st.kind == "straight":
+            lane = st.lane_a if (floor_id - 1) % 2 == 0 else st.lane_b
+            return (st.flight_x0, below.flight_x1, lane[0], lane[1])
+        x0, x1, y0, y1 = st.rect
+        return (x0, st.flight_x0, y0, y1) if st.reverse else (st.flight_x0, x1, y0, y1)
 
     def _build_floor(self, floor: FloorGeometry, rng: np.random.Generator) -> None:
         e = floor.elevation_m
-        h = self.floor_height_m
+        h = self.storey_height(floor.floor_id)
         top = e + h - SLAB_M  # underside of the slab above
         boxes = floor.boxes
-        out = (X_MIN - OUTER_WALL_M, X_MAX + OUTER_WALL_M, Y_MIN - OUTER_WALL_M, Y_MAX + OUTER_WALL_M)
+        xa, xb, ya, yb = self.spec.footprint
+        out = (xa - OUTER_WALL_M, xb + OUTER_WALL_M, ya - OUTER_WALL_M, yb + OUTER_WALL_M)
         holes = []
         if floor.floor_id > 0:
             holes.append(self.shaft_rect)
@@ -250,66 +450,139 @@ class Building:
         if floor.floor_id == self.n_floors - 1:
             boxes.append(Box((out[0], out[2], e + h - SLAB_M), (out[1], out[3], e + h), Kind.SLAB))
         t = OUTER_WALL_M
-        boxes += _wall("x", out[0], out[1], Y_MIN - t / 2, e, top, t)
-        boxes += _wall("x", out[0], out[1], Y_MAX + t / 2, e, top, t)
-        boxes += _wall("y", Y_MIN, Y_MAX, X_MIN - t / 2, e, top, t)
-        boxes += _wall("y", Y_MIN, Y_MAX, X_MAX + t / 2, e, top, t)
+        boxes += _wall("x", out[0], out[1], ya - t / 2, e, top, t)
+        boxes += _wall("x", out[0], out[1], yb + t / 2, e, top, t)
+        boxes += _wall("y", ya, yb, xa - t / 2, e, top, t)
+        boxes += _wall("y", ya, yb, xb + t / 2, e, top, t)
         self._shaft(floor)
-        self._stairwell(floor)
-        for px, py in PILLARS_XY:
-            boxes.append(Box((px - PILLAR_HALF, py - PILLAR_HALF, e), (px + PILLAR_HALF, py + PILLAR_HALF, top), Kind.PILLAR))
-        for block in BLOCKS:
+        if self.spec.stairwell.kind == "straight":
+            self._stairwell(floor)
+        else:
+            self._switchback(floor)
+        for axis, a0, a1, c in self.spec.extra_walls:
+            boxes += _wall(axis, a0, a1, c, e, top, INNER_WALL_M)
+        ph = self.spec.pillar_half_m
+        for px, py in self.spec.pillars:
+            boxes.append(Box((px - ph, py - ph, e), (px + ph, py + ph, top), Kind.PILLAR))
+        for block in self.spec.blocks:
             self._block(floor, block, rng)
 
     def _shaft(self, floor: FloorGeometry) -> None:
-        e, h = floor.elevation_m, self.floor_height_m
+        sh = self.spec.shaft
+        e, h = floor.elevation_m, self.storey_height(floor.floor_id)
         x0, x1, y0, y1 = self.shaft_rect
-        w = SHAFT_WALL_M
-        cx = SHAFT_CENTER[0]
+        w = sh.wall_m
+        cx, cy = sh.center
         z0 = e - SLAB_M if floor.floor_id > 0 else e
-        door = [(cx - ELEVATOR_DOOR_HALF, cx + ELEVATOR_DOOR_HALF, e + ELEVATOR_DOOR_HEIGHT_M - z0)]
-        floor.boxes += _wall("x", x0, x1, y0 + w / 2, z0, e + h - SLAB_M, w, door)
-        floor.boxes += _wall("x", x0, x1, y1 - w / 2, z0, e + h - SLAB_M, w)
-        floor.boxes += _wall("y", y0, y1, x0 + w / 2, z0, e + h - SLAB_M, w)
-        floor.boxes += _wall("y", y0, y1, x1 - w / 2, z0, e + h - SLAB_M, w)
+        top = e + h - SLAB_M
+        c = cx if sh.door in "ns" else cy
+        door = [(c - sh.door_half_m, c + sh.door_half_m, e + sh.door_height_m - z0)]
+        floor.boxes += _wall("x", x0, x1, y0 + w / 2, z0, top, w, door if sh.door == "s" else ())
+        floor.boxes += _wall("x", x0, x1, y1 - w / 2, z0, top, w, door if sh.door == "n" else ())
+        floor.boxes += _wall("y", y0, y1, x0 + w / 2, z0, top, w, door if sh.door == "w" else ())
+        floor.boxes += _wall("y", y0, y1, x1 - w / 2, z0, top, w, door if sh.door == "e" else ())
 
     def landing_door(self, floor_id: int) -> Box:
+        sh = self.spec.shaft
         e = self.elevation(floor_id)
-        cx = SHAFT_CENTER[0]
-        y0 = self.shaft_rect[2]
-        return Box((cx - ELEVATOR_DOOR_HALF, y0 + 0.06, e), (cx + ELEVATOR_DOOR_HALF, y0 + 0.1, e + ELEVATOR_DOOR_HEIGHT_M), Kind.DOOR)
+        cx, cy = sh.center
+        x0, x1, y0, y1 = self.shaft_rect
+        d, z1 = sh.door_half_m, e + sh.door_height_m
+        if sh.door == "s":
+            return Box((cx - d, y0 + 0.06, e), (cx + d, y0 + 0.1, z1), Kind.DOOR)
+        if sh.door == "n":
+            return Box((cx - d, y1 - 0.1, e), (cx + d, y1 - 0.06, z1), Kind.DOOR)
+        if sh.door == "w":
+            return Box((x0 + 0.06, cy - d, e), (x0 + 0.1, cy + d, z1), Kind.DOOR)
+        return Box((x1 - 0.1, cy - d, e), (x1 - 0.06, cy + d, z1), Kind.DOOR)
 
     def _stairwell(self, floor: FloorGeometry) -> None:
-        e, h, k = floor.elevation_m, self.floor_height_m, floor.floor_id
+        st = self.spec.stairwell
+        e, h, k = floor.elevation_m, self.storey_height(floor.floor_id), floor.floor_id
         top = e + h - SLAB_M
-        t = INNER_WALL_M
-        doors = [(a, b, DOOR_HEIGHT_M) for a, b in STAIR_DOOR_X]
-        floor.boxes += _wall("x", STAIR_X0, STAIR_X1, STAIR_Y1, e, top, t, doors)
-        floor.boxes += _wall("y", STAIR_Y0, STAIR_Y1, STAIR_X0, e, top, t)
-        x1 = self.stairs.flight_x1
+        doors = [(a, b, DOOR_HEIGHT_M) for a, b in st.doors_x]
+        floor.boxes += self._stair_walls(e, top, doors)
+        s = self.flights[k]
+        x1 = s.flight_x1
+        fx0 = st.flight_x0
         # The divider between the lanes reaches through the slab so nobody falls into a hole.
         z_div = e - SLAB_M if k > 0 else e
-        floor.boxes.append(Box((STAIR_FLIGHT_X0, -14.06, z_div), (x1, -13.94, top), Kind.WALL))
+        floor.boxes.append(Box((fx0, st.divider[0], z_div), (x1, st.divider[1], top), Kind.WALL))
         hole = self.stair_hole(k)
         if hole is not None:
             # Railing at the end of the hole where no flight arrives.
-            x_rail = STAIR_FLIGHT_X0 if (k - 1) % 2 == 0 else x1
+            x_rail = fx0 if (k - 1) % 2 == 0 else hole[1]
             floor.boxes.append(Box((x_rail - 0.03, hole[2], e), (x_rail + 0.03, hole[3], e + 1.0), Kind.WALL))
         if k < self.n_floors - 1:
-            lane = LANE_A_Y if k % 2 == 0 else LANE_B_Y
-            s = self.stairs
+            lane = st.lane_a if k % 2 == 0 else st.lane_b
             for i in range(1, s.n_risers):
                 z_top = e + i * s.rise_m
                 if k % 2 == 0:
-                    xa, xb = STAIR_FLIGHT_X0 + (i - 1) * STAIR_TREAD_M, STAIR_FLIGHT_X0 + i * STAIR_TREAD_M
+                    xa, xb = fx0 + (i - 1) * st.tread_m, fx0 + i * st.tread_m
                 else:
-                    xa, xb = x1 - i * STAIR_TREAD_M, x1 - (i - 1) * STAIR_TREAD_M
+                    xa, xb = x1 - i * st.tread_m, x1 - (i - 1) * st.tread_m
                 floor.boxes.append(Box((xa, lane[0], e), (xb, lane[1], z_top), Kind.STAIRS))
 
-    def _block(self, floor: FloorGeometry, block: tuple[str, float, float, float, float, str], rng: np.random.Generator) -> None:
-        name, x0, x1, y0, y1, sides = block
+    def _stair_walls(self, e: float, top: float, doors: list[tuple[float, float, float]]) -> list[Box]:
+        """The stairwell's own walls, doorways in the door wall."""
+        st = self.spec.stairwell
+        t = INNER_WALL_M
+        sx0, sx1, sy0, sy1 = st.rect
+        boxes: list[Box] = []
+        if "n" in st.walls:
+            boxes += _wall("x", sx0, sx1, sy1, e, top, t, doors if st.door_side == "n" else ())
+        if "w" in st.walls:
+            boxes += _wall("y", sy0, sy1, sx0, e, top, t)
+        if "s" in st.walls:
+            boxes += _wall("x", sx0, sx1, sy0, e, top, t, doors if st.door_side == "s" else ())
+        if "e" in st.walls:
+            boxes += _wall("y", sy0, sy1, sx1, e, top, t)
+        return boxes
+
+    def _switchback(self, floor: FloorGeometry) -> None:
+        st = self.spec.stairwell
+        k = floor.floor_id
+        e, h = floor.elevation_m, self.storey_height(k)
+        top = e + h - SLAB_M
+        sx0, sx1, sy0, sy1 = st.rect
+        floor.boxes += self._stair_walls(e, top, [(a, b, DOOR_HEIGHT_M) for a, b in st.doors_x])
+        g = self.flights[k]
+        sgn = -1.0 if st.reverse else 1.0
+        fx0, T = st.flight_x0, st.tread_m
+        far = fx0 + sgn * g.run_m  # where the flights meet the half landing
+        # The divider between the lanes reaches down through the slab to the one below, but
+        # where this storey's flights run on over the half landing below (a longer flight than
+        # the storey's below) it stops at their underside, leaving headroom on that landing.
+        prev_run = self.flights[k - 1].run_m if k > 0 else g.run_m
+        reach = min(prev_run, g.run_m)
+        cut = fx0 + sgn * reach
+        z_div = e - SLAB_M if k > 0 else e
+        lo, hi = sorted((fx0, cut))
+        floor.boxes.append(Box((lo, st.divider[0], z_div), (hi, st.divider[1], top), Kind.WALL))
+        if g.run_m > reach:
+            z_under = e + (h / 2) * (reach / g.run_m) - g.rise_m - st.waist_m
+            lo, hi = sorted((cut, far))
+            floor.boxes.append(Box((lo, st.divider[0], z_under), (hi, st.divider[1], top), Kind.WALL))
+        if k == self.n_floors - 1:
+            # The top floor: no flight leaves it, so a railing closes lane a at the landing's edge.
+            a0, a1 = st.lane_a
+            floor.boxes.append(Box((fx0 - 0.03, a0, e), (fx0 + 0.03, a1, e + 1.0), Kind.WALL))
+            return
+        z_mid = e + h / 2
+        m0, m1 = sorted((far, sx1 if sgn > 0 else sx0))
+        floor.boxes.append(Box((m0, sy0, z_mid - SLAB_M), (m1, sy1, z_mid), Kind.SLAB))
+        for i in range(1, g.n_risers):
+            # Lane a up from the floor, lane b up from the half landing; each step a slice of a
+            # slab `waist_m` thick, so the flights above and below leave headroom.
+            for lane, z_base, start, step in ((st.lane_a, e, fx0, sgn * T), (st.lane_b, z_mid, far, -sgn * T)):
+                z_top = z_base + i * g.rise_m
+                xa, xb = sorted((start + (i - 1) * step, start + i * step))
+                floor.boxes.append(Box((xa, lane[0], z_top - g.rise_m - st.waist_m), (xb, lane[1], z_top), Kind.STAIRS))
+
+    def _block(self, floor: FloorGeometry, block: Block, rng: np.random.Generator) -> None:
+        x0, x1, y0, y1, sides = block.x0, block.x1, block.y0, block.y1, block.sides
         e = floor.elevation_m
-        top = e + self.floor_height_m - SLAB_M
+        top = e + self.storey_height(floor.floor_id) - SLAB_M
         t = INNER_WALL_M
         along_x = (x1 - x0) >= (y1 - y0)
         length = (x1 - x0) if along_x else (y1 - y0)
@@ -345,7 +618,7 @@ class Building:
             options = []
             for s in sides:
                 lo, hi = (rx0, rx1) if s in "ns" else (ry0, ry1)
-                lim = SIDE_LIMITS.get((name, s))
+                lim = next(((a, b) for side, a, b in block.limits if side == s), None)
                 if lim is not None:
                     lo, hi = max(lo, lim[0]), min(hi, lim[1])
                 if hi - lo >= 1.8:
@@ -357,8 +630,10 @@ class Building:
             start = float(rng.uniform(lo + 0.3, hi - 0.3 - width))
             openings[s].append((start, start + width, DOOR_HEIGHT_M))
             self._furniture(floor, (rx0, rx1, ry0, ry1), s, (start, start + width), rng)
+        fx0, fx1, fy0, fy1 = self.spec.footprint
+        outer = {("n", fy1), ("s", fy0), ("w", fx0), ("e", fx1)}
         for s in "nswe":
-            if (s, {"n": y1, "s": y0, "w": x0, "e": x1}[s]) in _OUTER_SIDES:
+            if (s, {"n": y1, "s": y0, "w": x0, "e": x1}[s]) in outer:
                 continue
             if s == "n":
                 floor.boxes += _wall("x", x0, x1, y1, e, top, t, openings[s])
@@ -409,19 +684,22 @@ class Building:
 
     # -- elevator cabin (in its own frame: origin at the cabin floor centre) ----------------
     def cabin_boxes(self, door_closed: bool) -> list[Box]:
-        a, w, hc = CABIN_HALF, CABIN_WALL_M, CABIN_HEIGHT_M
+        sh = self.spec.shaft
+        a, w, hc, dh, dz = sh.cabin_half_m, sh.cabin_wall_m, sh.cabin_height_m, sh.door_half_m, sh.door_height_m
         boxes = [
             Box((-a, -a, -0.1), (a, a, 0.0), Kind.CABIN_FLOOR),
             Box((-a, -a, hc), (a, a, hc + 0.1), Kind.CABIN_FLOOR),
         ]
-        door = [(-ELEVATOR_DOOR_HALF, ELEVATOR_DOOR_HALF, ELEVATOR_DOOR_HEIGHT_M)]
+        door = [(-dh, dh, dz)]
         boxes += _wall("x", -a, a, -a + w / 2, 0.0, hc, w, door, Kind.CABIN_WALL)
         boxes += _wall("x", -a, a, a - w / 2, 0.0, hc, w, kind=Kind.CABIN_WALL)
         boxes += _wall("y", -a, a, -a + w / 2, 0.0, hc, w, kind=Kind.CABIN_WALL)
         boxes += _wall("y", -a, a, a - w / 2, 0.0, hc, w, kind=Kind.CABIN_WALL)
         if door_closed:
-            boxes.append(Box((-ELEVATOR_DOOR_HALF, -a + 0.005, 0.0), (ELEVATOR_DOOR_HALF, -a + w - 0.005, ELEVATOR_DOOR_HEIGHT_M), Kind.CABIN_WALL))
-        return boxes
+            boxes.append(Box((-dh, -a + 0.005, 0.0), (dh, -a + w - 0.005, dz), Kind.CABIN_WALL))
+        # Built with the doors at -y, then turned to face the shaft's doors.
+        turns = {"s": 0, "e": 1, "n": 2, "w": 3}[sh.door]
+        return boxes if turns == 0 else [_rotate_box(b, turns) for b in boxes]
 
     # -- ray casting ---------------------------------------------------------------------
     def static_boxes(self) -> list[Box]:

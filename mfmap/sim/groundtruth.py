@@ -2,11 +2,23 @@
 
 Formats as in DESIGN.md. Times are epoch seconds (the .tum and .csv carry all nine nanosecond
 digits). Besides the shared schema, gt_floors.json has:
+- floor ids are ranks among the floors the robot visits (0 = the lowest), as a build numbers
+  them: a floor only passed through on the stairs or stopped at in the cabin has none; each
+  floor's "building_floor" is its index in the building (0 = the building's lowest);
 - per transition: "connector" (0 = elevator, 1 = stairs), "height_change_m";
 - "sim": scenario, seed, start_ns (stamp of the first lidar scan = world-frame origin),
-  floor_height_m, reference_pressure_pa (at world z = 0, t = 0), temperature_k,
-  baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
-  door_open [[t_open, t_close, floor]] (elevator doors open: the cabin is visible).
+  building (its name), floor_height_m (null when the storeys differ), storey_heights_m and
+  elevations_m of every floor of the building (visited or not, by building floor),
+  stairwell (straight or switchback),
+  reference_pressure_pa (at world z = 0, t = 0), temperature_k (the air
+  column's virtual temperature at world z = 0), temperature_gradient_k_per_m, gravity_m_s2
+  (pressure at height h: mfmap.sim.atmosphere.AirColumn), baro_height_above_base_m, drift_pa_per_h (signed), pressure_transients [[t0, t1, dPa]],
+  door_open [[t_open, t_close, building floor]] (elevator doors open: the cabin is
+  visible), world (the
+  building's air as drawn: mfmap.sim.world.World.document; floor_offsets_pa are each floor's
+  pressure relative to the shaft's air column), door_pulses [[t, dPa]].
+Each floor's pressure_pa is at the barometer's height on it, at the start's weather, with the
+floor's offset.
 gt_cloud.ply samples the static surfaces (closed landing doors included, the cabin not) with an
 int `floor` per point: the floor whose space holds the point (its floor surface, walls, furniture
 and its ceiling, i.e. the underside of the slab above).
@@ -23,15 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.atomic import atomic_open, write_bytes_atomic
-from mfmap.baro import T0_K, pressure_from_height
-from mfmap.sim.building import (
-    SHAFT_CENTER,
-    STAIR_X0,
-    STAIR_X1,
-    STAIR_Y0,
-    STAIR_Y1,
-    Building,
-)
+from mfmap.sim.building import Building
 from mfmap.sim.sensors import BARO_MOUNT, Barometer
 from mfmap.sim.trajectory import Trajectory, quaternions
 
@@ -84,11 +88,19 @@ def write_trajectory(path: Path, traj: Trajectory, start_ns: int, scan_times: np
     return _atomic_write(path, ("\n".join(lines) + "\n").encode())
 
 
+def floor_ids(traj: Trajectory) -> dict[int, int]:
+    """The building's floor index -> the ground truth's floor id: the rank among the floors the
+    robot visits (0 = the lowest), as a build numbers them; a floor only passed through on the
+    stairs or stopped at in the cabin is not among them."""
+    return {k: i for i, k in enumerate(sorted({f for f, _, _ in traj.floor_visits}))}
+
+
 def write_points(path: Path, traj: Trajectory, start_ns: int) -> Path:
+    ids = floor_ids(traj)
     lines = ["label,floor,x,y,z,t_start,t_end"]
     for c in traj.checkpoints:
         lines.append(
-            f"{c.label},{c.floor},{c.x:.4f},{c.y:.4f},{c.z:.4f},"
+            f"{c.label},{ids[c.floor]},{c.x:.4f},{c.y:.4f},{c.z:.4f},"
             f"{epoch_text(start_ns, c.t_start_s)},{epoch_text(start_ns, c.t_end_s)}"
         )
     return _atomic_write(path, ("\n".join(lines) + "\n").encode())
@@ -97,22 +109,29 @@ def write_points(path: Path, traj: Trajectory, start_ns: int) -> Path:
 def floors_document(
     spec: ScenarioSpec, building: Building, traj: Trajectory, baro: Barometer, start_ns: int, seed: int
 ) -> dict[str, Any]:
-    visited = sorted({f for f, _, _ in traj.floor_visits})
+    ids = floor_ids(traj)
+    visited = sorted(ids)
     all_floors = list(range(building.n_floors))
-    stair_xy = ((STAIR_X0 + STAIR_X1) / 2, (STAIR_Y0 + STAIR_Y1) / 2)
+    gt_ids = [ids[k] for k in visited]
+    sx0, sx1, sy0, sy1 = building.stair_rect
+    stair_xy = ((sx0 + sx1) / 2, (sy0 + sy1) / 2)
+    shaft_xy = building.shaft_center
     connectors = [
-        {"id": 0, "kind": "elevator", "x": SHAFT_CENTER[0], "y": SHAFT_CENTER[1], "floors": all_floors},
-        {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": all_floors},
+        {"id": 0, "kind": "elevator", "x": shaft_xy[0], "y": shaft_xy[1], "floors": gt_ids},
+        {"id": 1, "kind": "stairs", "x": stair_xy[0], "y": stair_xy[1], "floors": gt_ids},
     ]
+    world = baro.world
+    offsets = world.floor_offsets_pa if world is not None else [0.0] * building.n_floors
     floors = []
     for k in visited:
         elev = building.elevation(k)
         floors.append(
             {
-                "id": k,
+                "id": ids[k],
+                "building_floor": k,
                 "elevation_m": round(elev, 6),
                 # Pressure at the barometer's height on this floor, at the start's weather.
-                "pressure_pa": round(pressure_from_height(elev + BARO_MOUNT.xyz[2], baro.p0_pa, T0_K), 3),
+                "pressure_pa": round(baro.air.pressure_pa(elev + BARO_MOUNT.xyz[2], baro.p0_pa) + offsets[k], 3),
                 "visits": [
                     [epoch_s(start_ns, t0), epoch_s(start_ns, t1)] for f, t0, t1 in traj.floor_visits if f == k
                 ],
@@ -122,8 +141,8 @@ def floors_document(
     transitions = [
         {
             "kind": tr.kind,
-            "from": tr.from_floor,
-            "to": tr.to_floor,
+            "from": ids[tr.from_floor],
+            "to": ids[tr.to_floor],
             "t_start": epoch_s(start_ns, tr.t_start_s),
             "t_end": epoch_s(start_ns, tr.t_end_s),
             "height_change_m": round(tr.height_change_m, 6),
@@ -143,15 +162,25 @@ def floors_document(
             "scenario": spec.name,
             "seed": seed,
             "start_ns": start_ns,
-            "floor_height_m": building.floor_height_m,
+            "building": building.spec.name,
+            "floor_height_m": building.floor_height_m if building.uniform else None,
+            "storey_heights_m": list(building.storeys_m),
+            "elevations_m": [round(building.elevation(k), 6) for k in all_floors],
+            "stairwell": building.spec.stairwell.kind,
             "reference_pressure_pa": round(baro.p0_pa, 3),
-            "temperature_k": T0_K,
+            "temperature_k": baro.air.virtual_temperature_k,
+            "temperature_gradient_k_per_m": baro.air.gradient_k_per_m,
+            "gravity_m_s2": baro.air.gravity_m_s2,
             "baro_height_above_base_m": BARO_MOUNT.xyz[2],
             "drift_pa_per_h": baro.drift_sign * baro.spec.drift_pa_per_h,
             "pressure_transients": [
                 [epoch_s(start_ns, t0), epoch_s(start_ns, t1), round(dp, 3)] for t0, t1, dp in baro.transients
             ],
             "door_open": [[epoch_s(start_ns, t0), epoch_s(start_ns, t1), f] for t0, t1, f in traj.door_open],
+            "world": None if world is None else world.document(building),
+            "door_pulses": []
+            if world is None
+            else [[epoch_s(start_ns, t0), round(dp, 3)] for t0, dp in world.door_pulses],
         },
     }
 

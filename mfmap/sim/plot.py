@@ -70,10 +70,11 @@ def plot_floorplans(building: Building, traj: Trajectory, path: Path) -> Path:
             if c.floor == k:
                 ax.plot(c.x, c.y, "o", color="#2ca02c", markersize=7)
                 ax.annotate(c.label, (c.x, c.y), textcoords="offset points", xytext=(5, 5), fontsize=9)
-        ax.set_title(f"floor {k}: elevation {e:+.2f} m (slab {SLAB_M} m)")
+        ax.set_title(f"floor {k}: elevation {e:+.2f} m, storey {building.storey_height(k):.2f} m (slab {SLAB_M} m)")
         ax.set_aspect("equal")
-        ax.set_xlim(-5, 27)
-        ax.set_ylim(-17, 5)
+        fx0, fx1, fy0, fy1 = building.spec.footprint
+        ax.set_xlim(fx0 - 1, fx1 + 1)
+        ax.set_ylim(fy0 - 1, fy1 + 1)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.grid(alpha=0.2)
@@ -102,7 +103,7 @@ def plot_pressure(
 
     # The written samples come from a generator already consumed; draw a fresh, identically
     # seeded barometer so the plot shows exactly the logged values.
-    fresh = Barometer(baro.spec, traj, baro.p0_pa, _seed_of(baro))
+    fresh = Barometer(baro.spec, traj, baro.p0_pa, _seed_of(baro), baro.world)
     step = RATE_HZ // baro.spec.rate_hz
     n = round(traj.duration_s) * baro.spec.rate_hz
     ticks = np.arange(n, dtype=np.int64) * step
@@ -112,10 +113,7 @@ def plot_pressure(
     floor = np.array([building.floor_of_height(z) for z in traj.xyz[ticks, 2]])
     fig, ax = plt.subplots(figsize=(11, 4.5))
     ax.plot(t, p, color="#1f77b4", linewidth=0.6, label="barometer (logged)")
-    ref = fresh.reference(t)
-    from mfmap.baro import T0_K, pressure_from_height
-
-    ax.plot(t, pressure_from_height(fresh.true_height(ticks), ref, T0_K), color="#ff7f0e", linewidth=1.0, label="noise-free")
+    ax.plot(t, fresh.clean(ticks), color="#ff7f0e", linewidth=1.0, label="noise-free")
     for t0, t1, _ in baro.transients:
         ax.axvspan(t0, t1, color="#ffbb78", alpha=0.4)
     ax.set_xlabel(f"time since start [s] (t0 = {start_ns / 1e9:.0f} epoch s)")

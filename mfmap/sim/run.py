@@ -15,7 +15,7 @@ from mfmap.errors import MfmapError, OutputError
 from mfmap.progress import NullProgress, Progress
 from mfmap.sim import groundtruth
 from mfmap.sim.building import Building
-from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec
+from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec, building_for
 from mfmap.sim.sensors import (
     BARO_MOUNT,
     IMU_MOUNT,
@@ -29,9 +29,11 @@ from mfmap.sim.sensors import (
     Lidar,
     Mount,
     Scenes,
+    Thermometer,
     WheelOdometry,
 )
 from mfmap.sim.trajectory import DT_S, RATE_HZ, RouteBuilder, Trajectory, quaternions
+from mfmap.sim.world import World
 from mfmap.sim.writers import LogWriter, u8
 
 logger = logging.getLogger(__name__)
@@ -41,6 +43,7 @@ TOPIC_SCAN = "/scan"
 TOPIC_IMU = "/imu/data"
 TOPIC_ODOM = "/odom"
 TOPIC_BARO = "/baro/pressure"
+TOPIC_BARO_TEMPERATURE = "/baro/temperature"
 TOPIC_TF_STATIC = "/tf_static"
 BASE_FRAME = "base_link"
 ODOM_FRAME = "odom"
@@ -84,6 +87,16 @@ def build_trajectory(spec: ScenarioSpec, building: Building, seed: int, reps: in
     return builder.finish(rng)
 
 
+def make_barometer(spec: ScenarioSpec, building: Building, traj: Trajectory, seed: int) -> Barometer:
+    """The scenario's barometer in its world: the world drawn from the seed, prepared for the
+    route (zones, doors, cabin), and the sensor on top."""
+    p0 = reference_pressure_pa(seed)
+    world = World.draw(spec.world, building, p0, seed)
+    baro = Barometer(spec.baro, traj, p0, seed, world)
+    world.prepare(building, traj, baro.true_height(np.arange(len(traj.xyz))))
+    return baro
+
+
 def simulate(
     scenario: str,
     out_dir: Path | str,
@@ -110,12 +123,11 @@ def simulate(
     except OSError as err:
         raise OutputError(f"cannot create the output folder ({err.strerror})", out) from err
     reps = max(1, round(duration_scale))
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    building = building_for(spec, seed)
     traj = build_trajectory(spec, building, seed, reps)
     start_ns = start_stamp_ns(seed)
-    p0 = reference_pressure_pa(seed)
     duration_s = round(traj.duration_s)
-    baro = Barometer(spec.baro, traj, p0, seed)
+    baro = make_barometer(spec, building, traj, seed)
     with LogWriter(out, fmt) as writer:
         counts = _write_log(writer, spec, building, traj, baro, start_ns, duration_s, seed, progress)
     log_path = writer.path
@@ -147,7 +159,7 @@ def simulate(
         paths["cloud"],
         start_ns,
         float(duration_s),
-        spec.n_floors,
+        building.n_floors,
         counts,
         size,
         time.perf_counter() - t_wall,
@@ -177,6 +189,8 @@ def _write_log(
     laser = Laser(spec.laser, scenes, seed) if spec.laser else None
     imu = Imu(traj, seed)
     odom = WheelOdometry(seed)
+    world = baro.world
+    thermo = Thermometer(world, baro, duration_s, seed) if world and world.thermometer else None
     mounts = [IMU_MOUNT, BARO_MOUNT]
     if lidar:
         w.add_topic(TOPIC_LIDAR, "sensor_msgs/msg/PointCloud2")
@@ -187,6 +201,8 @@ def _write_log(
     w.add_topic(TOPIC_IMU, "sensor_msgs/msg/Imu")
     w.add_topic(TOPIC_ODOM, "nav_msgs/msg/Odometry")
     w.add_topic(TOPIC_BARO, "sensor_msgs/msg/FluidPressure")
+    if thermo:
+        w.add_topic(TOPIC_BARO_TEMPERATURE, "sensor_msgs/msg/Temperature")
     w.add_topic(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", latched=True)
     w.write(TOPIC_TF_STATIC, start_ns, _tf_static(w, mounts, start_ns))
 
@@ -284,6 +300,16 @@ def _write_log(
                     variance=spec.baro.noise_pa**2,
                 )
                 batch.append((stamp, 3, TOPIC_BARO, msg))
+            if thermo:
+                t_rate = thermo.rate_hz
+                for kt in range(sec * t_rate, (sec + 1) * t_rate):
+                    stamp = _stamp(start_ns, kt, t_rate)
+                    msg = T["sensor_msgs/msg/Temperature"](
+                        header=w.header(stamp, BARO_MOUNT.frame, TOPIC_BARO_TEMPERATURE),
+                        temperature=float(thermo.celsius[kt]),
+                        variance=thermo.noise_k**2,
+                    )
+                    batch.append((stamp, 4, TOPIC_BARO_TEMPERATURE, msg))
             batch.sort(key=lambda m: (m[0], m[1]))
             for stamp, _, topic, msg in batch:
                 w.write(topic, stamp, msg)

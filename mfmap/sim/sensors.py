@@ -12,9 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.baro import T0_K, pressure_from_height
-from mfmap.sim.building import CABIN_HALF, SHAFT_CENTER, Building, Kind, cast_rays, kinds_of
+from mfmap.sim.atmosphere import CALM_AIR
+from mfmap.sim.building import Building, Kind, cast_rays, kinds_of
 from mfmap.sim.trajectory import DT_S, RATE_HZ, FArr, Trajectory, rotation_matrices
+from mfmap.sim.world import World
 
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
@@ -111,12 +112,13 @@ class Scenes:
         cos = np.abs((n * dirs).sum(axis=1))
         cabin_wall = np.zeros(len(r), dtype=bool)
         xy = rays[:, :2].mean(axis=0)
-        inside = bool(np.all(np.abs(xy - np.array(SHAFT_CENTER)) < CABIN_HALF))
+        center = self.building.shaft_center
+        inside = bool(np.all(np.abs(xy - np.array(center)) < self.building.cabin_half_m))
         if open_floor is not None or inside:
             door_closed = open_floor is None
             local = rays.copy()
-            local[:, 0] -= SHAFT_CENTER[0]
-            local[:, 1] -= SHAFT_CENTER[1]
+            local[:, 0] -= center[0]
+            local[:, 1] -= center[1]
             local[:, 2] -= self.traj.cabin_z_at(t_s).astype(np.float32)
             rc, ids, nc = cast_rays(self.building.cabin_scene(door_closed), local)
             closer = rc < r
@@ -311,13 +313,19 @@ class WheelOdometry:
 
 
 class Barometer:
-    """Hypsometric pressure at the sensor plus weather drift, transients, noise, quantisation."""
+    """Hydrostatic pressure at the sensor (the simulator's own air column) plus weather drift,
+    transients, noise, quantisation; and, from the world, the zone the sensor is in (stack
+    effect, ventilation, doors, the cabin) and the weather beyond the spec's drift."""
 
-    def __init__(self, spec: BaroSpec, traj: Trajectory, p0_pa: float, seed: int) -> None:
+    def __init__(
+        self, spec: BaroSpec, traj: Trajectory, p0_pa: float, seed: int, world: World | None = None
+    ) -> None:
         self.spec = spec
         self.traj = traj
         self.p0_pa = p0_pa
         self.seed = seed
+        self.world = world
+        self.air = world.air if world is not None else CALM_AIR
         rng = np.random.default_rng([seed, 23])
         self.rng = rng
         self.drift_sign = 1.0 if rng.random() < 0.5 else -1.0
@@ -334,24 +342,47 @@ class Barometer:
                 t += dur + float(rng.exponential(spec.transient_every_s))
 
     def reference(self, t_s: FArr) -> F64:
-        """Pressure at world z = 0 without noise: weather drift, slow wander and transients."""
+        """Pressure at world z = 0 in the shaft's air without noise: weather drift, slow wander,
+        transients and the world's weather."""
         s = self.spec
         p = self.p0_pa + self.drift_sign * s.drift_pa_per_h * t_s / 3600.0
         p = p + 1.5 * np.sin(2 * math.pi * t_s / 900.0 + self.wander_phase)
         for t0, t1, dp in self.transients:
             # Short ramps: a door or an air handler takes a fraction of a second to change it.
             p = p + dp * np.clip((t_s - t0) / 0.3, 0, 1) * np.clip((t1 - t_s) / 0.3, 0, 1)
-        return p
+        if self.world is not None:
+            p = p + self.world.weather_pa(np.asarray(t_s, dtype=np.float64))
+        return np.asarray(p, dtype=np.float64)
 
     def true_height(self, i: F64 | npt.NDArray[np.int64]) -> F64:
         rot = rotation_matrices(self.traj.rpy[i])
         return self.traj.xyz[i, 2] + (rot @ np.array(BARO_MOUNT.xyz))[:, 2]
 
-    def samples(self, ticks: npt.NDArray[np.int64]) -> F64:
+    def clean(self, ticks: npt.NDArray[np.int64]) -> F64:
+        """The pressure at the sensor without the sensor's own noise and quantisation."""
         t = ticks * DT_S
-        p = pressure_from_height(self.true_height(ticks), self.reference(t), T0_K)
+        p = self.air.pressure_pa(self.true_height(ticks), self.reference(t))
+        if self.world is not None and len(self.world.offsets):
+            p = p + self.world.offsets[ticks]
+        return p
+
+    def samples(self, ticks: npt.NDArray[np.int64]) -> F64:
+        p = self.clean(ticks)
         p = p + self.rng.normal(0, self.spec.noise_pa, len(ticks))
         return np.round(p / self.spec.quantum_pa) * self.spec.quantum_pa
+
+
+class Thermometer:
+    """The barometer chip's temperature (sensor_msgs/Temperature in the barometer's frame)."""
+
+    def __init__(self, world: World, baro: Barometer, duration_s: int, seed: int) -> None:
+        assert world.thermometer is not None
+        self.rate_hz = world.thermometer.spec.rate_hz
+        self.noise_k = world.thermometer.spec.noise_k
+        n = duration_s * self.rate_hz
+        t = np.arange(n) / self.rate_hz
+        ticks = np.arange(n) * (RATE_HZ // self.rate_hz)
+        self.celsius = world.chip_temperature_c(t, baro.true_height(ticks), np.random.default_rng([seed, 43]))
 
 
 assert RATE_HZ == 200

@@ -2,27 +2,22 @@
 
 A `RouteBuilder` appends motion primitives to a pose sampled at 200 Hz (the IMU rate) and records
 the events ground truth needs: checkpoint windows, floor transitions, elevator door states.
+A transition is one floor change as a visit sees it: an elevator ride that stops on floors where
+the robot stays in the cabin, or a walk over several flights, landings, pauses and floors passed
+through, is one transition from the floor left to the floor reached.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.sim.building import (
-    LANE_A_Y,
-    LANE_B_Y,
-    SHAFT_CENTER,
-    STAIR_DOOR_X,
-    STAIR_FLIGHT_X0,
-    STAIR_TREAD_M,
-    STAIR_Y1,
-    Building,
-)
+from mfmap.sim.building import Building, StairGeometry
 
 F64 = npt.NDArray[np.float64]
 FArr = npt.NDArray[np.floating[Any]]
@@ -32,10 +27,7 @@ DT_S = 1.0 / RATE_HZ
 YAW_RATE_MAX = 0.6  # rad/s
 YAW_ACC_MAX = 1.0  # rad/s^2
 ACC_MAX = 0.4  # m/s^2
-ELEVATOR_SPEED = 1.0  # m/s
-ELEVATOR_ACC = 0.5  # m/s^2
 STAIR_SPEED = 0.35  # m/s along the flight
-ELEVATOR_FRONT = (SHAFT_CENTER[0], -0.6)
 
 
 @dataclass(frozen=True)
@@ -241,6 +233,14 @@ class RouteBuilder:
         rpy[:, 2] = yaw
         self._append(np.column_stack([xy, z]), rpy)
 
+    def goto(self, xy: tuple[float, float], v_max: float | None = None) -> None:
+        """Drive to xy along the building's corridors (both ends on a corridor's centre line)."""
+        from mfmap.sim.layout import plan_path
+
+        path = plan_path(self.building.spec.corridors, (float(self.pos[0]), float(self.pos[1])), xy)
+        if path:
+            self.drive(*path, v_max=v_max)
+
     def checkpoint(self, label: str, seconds: float = 5.0) -> None:
         """Stand still for `seconds`; the first visit of (label, floor) goes to gt_points.csv."""
         t0 = self.t
@@ -254,28 +254,52 @@ class RouteBuilder:
     def _open_doors(self) -> None:
         self._door_t0 = self.t
 
-    def _close_doors(self) -> None:
+    def _close_doors(self, floor: int | None = None) -> None:
         assert self._door_t0 is not None
-        self.door_open.append((self._door_t0, self.t, self.floor))
+        self.door_open.append((self._door_t0, self.t, self.floor if floor is None else floor))
         self._door_t0 = None
 
-    def elevator(self, to_floor: int) -> None:
-        """Drive into the elevator from its front, ride to `to_floor`, drive out to its front."""
-        cx, cy = SHAFT_CENTER
-        self.drive(ELEVATOR_FRONT, v_max=0.6)
-        self.turn_to(math.pi / 2)
+    def elevator(self, to_floor: int, stops: Sequence[int] = (), stop_s: float = 5.0) -> None:
+        """Drive into the elevator from its front, ride to `to_floor`, drive out to its front.
+        At each floor of `stops` on the way the cabin halts and its doors open and close for
+        `stop_s` while the robot stays inside (someone else's call)."""
+        sh = self.building.spec.shaft
+        cx, cy = sh.center
+        nx, ny = sh.door_normal
+        self.drive(sh.front, v_max=0.6)
+        self.turn_to(math.atan2(-ny, -nx))
         self._call_cabin()
         self.wait(1.0)
         self._open_doors()
         self.wait(1.0)
         self.drive((cx, cy), v_max=0.5)
-        self.turn_to(-math.pi / 2)
+        self.turn_to(math.atan2(ny, nx))
         self.wait(1.0)
         self._close_doors()
         self.wait(1.0)
         z0 = self.building.elevation(self.floor)
         z1 = self.building.elevation(to_floor)
-        frac = profile_1d(abs(z1 - z0), ELEVATOR_SPEED, ELEVATOR_ACC)
+        t_start = self.t
+        for i, target in enumerate([*stops, to_floor]):
+            self._ride_to(self.building.elevation(target))
+            if i < len(stops):
+                self.wait(1.0)
+                self._open_doors()
+                self.wait(stop_s)
+                self._close_doors(target)
+                self.wait(1.0)
+        self._transition("elevator", to_floor, t_start, (cx, cy), (cx, cy), z1 - z0)
+        self.wait(1.0)
+        self._open_doors()
+        self.wait(1.0)
+        self.drive(sh.front, v_max=0.5)
+        self.wait(0.5)
+        self._close_doors()
+
+    def _ride_to(self, z1: float) -> None:
+        sh = self.building.spec.shaft
+        z0 = float(self.pos[2])
+        frac = profile_1d(abs(z1 - z0), sh.speed_m_s, sh.acc_m_s2)
         t_start = self.t
         xyz = np.repeat(self.pos[None], len(frac), 0)
         xyz[:, 2] = z0 + (z1 - z0) * frac
@@ -283,13 +307,6 @@ class RouteBuilder:
         self.cabin_z.append((t_start, z0))
         self.cabin_z += [(t_start + (i + 1) * DT_S, float(z)) for i, z in enumerate(xyz[:, 2])]
         self._append(xyz, np.repeat(self.rpy[-1][-1:], len(frac), 0))
-        self._transition("elevator", to_floor, t_start, (cx, cy), (cx, cy), z1 - z0)
-        self.wait(1.0)
-        self._open_doors()
-        self.wait(1.0)
-        self.drive(ELEVATOR_FRONT, v_max=0.5)
-        self.wait(0.5)
-        self._close_doors()
 
     def _call_cabin(self) -> None:
         # An empty cabin comes to the robot's floor while it waits (doors closed, unseen).
@@ -311,34 +328,41 @@ class RouteBuilder:
         self.floor = to_floor
 
     def stairs_up(self) -> None:
-        """Walk up one flight of the stairwell from the F corridor to the F corridor."""
+        """Walk up one straight flight of the stairwell from the corridor to the corridor."""
         b = self.building
+        st = b.spec.stairwell
+        if st.kind != "straight":
+            raise ValueError("stairs_up walks straight flights; use stairs() for switch-backs")
         k = self.floor
         if k >= b.n_floors - 1:
             raise ValueError("no floor above")
+        geo = b.flights[k]
+        tread = st.tread_m
         even = k % 2 == 0
-        lane_y = sum(LANE_A_Y if even else LANE_B_Y) / 2
-        x_land0 = sum(STAIR_DOOR_X[0]) / 2 if even else sum(STAIR_DOOR_X[1]) / 2
-        x_land1 = sum(STAIR_DOOR_X[1]) / 2 if even else sum(STAIR_DOOR_X[0]) / 2
-        x0 = STAIR_FLIGHT_X0 if even else b.stairs.flight_x1
-        x1 = b.stairs.flight_x1 if even else STAIR_FLIGHT_X0
+        lane_y = sum(st.lane_a if even else st.lane_b) / 2
+        x_land0 = sum(st.doors_x[0]) / 2 if even else sum(st.doors_x[1]) / 2
+        x_land1 = sum(st.doors_x[1]) / 2 if even else sum(st.doors_x[0]) / 2
+        x0 = st.flight_x0 if even else geo.flight_x1
+        x1 = geo.flight_x1 if even else st.flight_x0
         sgn = 1.0 if even else -1.0
         x_start = x0 - sgn * 0.5
         x_end = x1 + sgn * 0.5
-        self.drive((x_land0, -11.0), v_max=0.5)
-        self.drive((x_land0, STAIR_Y1 - 0.8), (x_land0, lane_y), (x_start, lane_y), v_max=0.4)
+        y_out = st.door_wall_y + st.outward * st.approach_m
+        y_in = st.door_wall_y - st.outward * 0.8
+        self.drive((x_land0, y_out), v_max=0.5)
+        self.drive((x_land0, y_in), (x_land0, lane_y), (x_start, lane_y), v_max=0.4)
         self.turn_to(0.0 if even else math.pi)
         # Climb: horizontal motion along the lane, base height on the line through the nosings,
         # the carrier pitched up with the slope and a small bounce on every step.
         length = abs(x_end - x_start)
         frac = profile_1d(length, STAIR_SPEED, 0.3)
         xs = x_start + sgn * length * frac
-        rise = b.floor_height_m
-        u = np.clip((sgn * (xs - x0) + 0.5 * STAIR_TREAD_M) / (abs(x1 - x0) + STAIR_TREAD_M), 0, 1)
+        rise = b.storey_height(k)
+        u = np.clip((sgn * (xs - x0) + 0.5 * tread) / (abs(x1 - x0) + tread), 0, 1)
         z_lin = b.elevation(k) + rise * u
         # Smooth the corners of the z profile over ~0.4 m of travel.
         z = _smooth_series(z_lin, max(3, int(0.4 / max(STAIR_SPEED * DT_S, 1e-6))))
-        bounce = 0.01 * np.sin(2 * np.pi * np.abs(xs - x0) / STAIR_TREAD_M) * (u > 0) * (u < 1)
+        bounce = 0.01 * np.sin(2 * np.pi * np.abs(xs - x0) / tread) * (u > 0) * (u < 1)
         z = z + bounce
         slope = np.gradient(z_lin) / np.maximum(np.abs(np.gradient(xs)), 1e-9)
         pitch = -0.7 * np.arctan(_smooth_series(slope, 80))
@@ -351,7 +375,110 @@ class RouteBuilder:
         self._transition("stairs", k + 1, t_start, (x_start, lane_y), (x_end, lane_y), rise)
         self.pos[2] = b.elevation(k + 1)  # exact floor height (pos is a view of the last sample)
         self.rpy[-1][-1, 1] = 0.0
-        self.drive((x_land1, STAIR_Y1 - 0.8), (x_land1, -11.0), v_max=0.4)
+        self.drive((x_land1, y_in), (x_land1, y_out), v_max=0.4)
+
+    def stairs(
+        self,
+        to_floor: int,
+        landing_pause_s: tuple[float, float] = (0.0, 0.0),
+        mid_flight_pause_s: tuple[float, float] = (0.0, 0.0),
+        mid_flight_pause_share: float = 0.0,
+    ) -> None:
+        """Walk a switch-back stairwell from this floor's corridor to `to_floor`'s, up or down,
+        through the floors between without leaving the stairwell (one transition). On each half
+        landing the carrier stands for a time drawn from `landing_pause_s`; on a share
+        `mid_flight_pause_share` of the flights it stops halfway for `mid_flight_pause_s`."""
+        b = self.building
+        st = b.spec.stairwell
+        if st.kind != "switchback":
+            raise ValueError("stairs() walks switch-back flights; use stairs_up() for straight ones")
+        k0 = self.floor
+        if not 0 <= to_floor < b.n_floors or to_floor == k0:
+            raise ValueError(f"no stairs from floor {k0} to floor {to_floor}")
+        sgn = -1.0 if st.reverse else 1.0
+        ya, yb = sum(st.lane_a) / 2, sum(st.lane_b) / 2
+        x_door = sum(st.doors_x[0]) / 2
+        x_start = st.flight_x0 - sgn * 0.4
+        y_out = st.door_wall_y + st.outward * st.approach_m
+        up = to_floor > k0
+        self.drive((x_door, y_out), v_max=0.5)
+        self.drive((x_door, ya), v_max=0.4)
+        lane0 = ya if up else yb
+        if lane0 != ya:
+            self.drive((x_door, lane0), v_max=0.3)
+        self.drive((x_start, lane0), v_max=0.3)
+        t_start = self.t
+        xy0 = (x_start, lane0)
+        storeys = range(k0, to_floor) if up else range(k0 - 1, to_floor - 1, -1)
+        for n, k in enumerate(storeys):
+            if n > 0:  # a floor passed through: across its landing to the next flight
+                self.drive((x_start, ya if up else yb), v_max=0.3)
+            geo = b.flights[k]
+            e, h = b.elevation(k), b.storey_height(k)
+            far = st.flight_x0 + sgn * geo.run_m
+            x_mid = far + sgn * 0.5
+            z_mid = e + h / 2
+            first = (ya, e, z_mid) if up else (yb, e + h, z_mid)
+            second = (yb, z_mid, e + h) if up else (ya, z_mid, e)
+            # Lane a rises from the floor landing (x_start side), lane b from the half landing.
+            lane_a, lane_b = (st.flight_x0, far), (far, st.flight_x0)
+            self._flight(x_start, x_mid, first, lane_a if up else lane_b, geo, mid_flight_pause_s, mid_flight_pause_share)
+            self.wait(self._draw(landing_pause_s))
+            self.drive((x_mid, second[0]), v_max=0.3)
+            self._flight(x_mid, x_start, second, lane_b if up else lane_a, geo, mid_flight_pause_s, mid_flight_pause_share)
+        lane1 = yb if up else ya
+        self._transition("stairs", to_floor, t_start, xy0, (x_start, lane1), b.elevation(to_floor) - b.elevation(k0))
+        self.drive((x_door, lane1), v_max=0.3)
+        if lane1 != ya:
+            self.drive((x_door, ya), v_max=0.3)
+        self.drive((x_door, y_out), v_max=0.4)
+
+    def _draw(self, r: tuple[float, float]) -> float:
+        return float(r[0]) if r[1] <= r[0] else float(self.rng.uniform(*r))
+
+    def _flight(
+        self,
+        x_from: float,
+        x_to: float,
+        lane: tuple[float, float, float],
+        ends: tuple[float, float],
+        geo: StairGeometry,
+        pause_s: tuple[float, float],
+        pause_share: float,
+    ) -> None:
+        """Carry the robot along one half flight from x_from to x_to in the lane at y = lane[0],
+        from height lane[1] to lane[2]; `ends` are the x of the flight's bottom and top risers.
+        Height, bounce and pitch are functions of the position, so a pause mid-flight holds them."""
+        y, z_from, z_to = lane
+        x_low, x_high = ends
+        rising = 1.0 if x_high > x_low else -1.0
+        tread = self.building.spec.stairwell.tread_m
+        self.turn_to(0.0 if x_to > x_from else math.pi)
+        length = abs(x_to - x_from)
+        s = np.linspace(0.0, length, max(3, int(length / 0.005) + 1))
+        xs = x_from + np.sign(x_to - x_from) * s
+        z_lo, z_hi = min(z_from, z_to), max(z_from, z_to)
+        u = np.clip((rising * (xs - x_low) + 0.5 * tread) / (geo.run_m + tread), 0, 1)
+        z_lin = z_lo + (z_hi - z_lo) * u
+        ds = float(s[1] - s[0])
+        z = _smooth_series(z_lin, max(3, int(0.4 / ds)))
+        z = z + 0.01 * np.sin(2 * np.pi * np.abs(xs - x_low) / tread) * (u > 0) * (u < 1)
+        slope = np.gradient(z_lin) / ds
+        pitch = -0.7 * np.arctan(_smooth_series(slope, max(3, int(0.14 / ds))))
+        stop = pause_share > 0 and self.rng.random() < pause_share
+        legs = [(0.0, 0.5 * length), (0.5 * length, length)] if stop else [(0.0, length)]
+        for i, (s0, s1) in enumerate(legs):
+            if i:
+                self.wait(self._draw(pause_s))
+            frac = profile_1d(s1 - s0, STAIR_SPEED, 0.3)
+            sq = s0 + (s1 - s0) * frac
+            xyz = np.column_stack([np.interp(sq, s, xs), np.full(len(sq), y), np.interp(sq, s, z)])
+            rpy = np.zeros((len(sq), 3))
+            rpy[:, 1] = np.interp(sq, s, pitch)
+            rpy[:, 2] = self.yaw
+            self._append(xyz, rpy)
+        self.pos[2] = z_to  # exact landing height (pos is a view of the last sample)
+        self.rpy[-1][-1, 1] = 0.0
 
     def finish(self, rng: np.random.Generator) -> Trajectory:
         """Pad to whole seconds plus one, add floor-unevenness wobble, return the trajectory."""

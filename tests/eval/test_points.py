@@ -159,3 +159,15 @@ def test_interrupted_build(make_build: Callable[..., Path], h: SimpleNamespace, 
     (out / "trajectory.tum").unlink()
     with pytest.raises(OutputError, match=r"trajectory\.tum is missing"):
         evaluate(out, points=points)
+
+
+def test_binary_ground_truth_files_are_one_error_naming_them(tmp_path: Path) -> None:
+    """A points CSV or TUM file that is not text: once a UnicodeDecodeError traceback."""
+    from mfmap.eval.io import read_points_csv, read_tum
+
+    for name, reader in (("points.csv", read_points_csv), ("gt.tum", read_tum)):
+        path = tmp_path / name
+        path.write_bytes(b"label,floor\n" + bytes(range(128, 256)))
+        with pytest.raises(GroundTruthError, match=r"not a text file \(byte 12 is not UTF-8\)") as err:
+            reader(path)
+        assert str(err.value).startswith(str(path))

@@ -24,6 +24,7 @@ from mfmap.export.score import GRID_KEYS, load_grid, score_build
 from tests.logcopy import copy_log
 
 EXPECTED = [
+    ".mfmap-build",
     "building.yaml",
     "config.yaml",
     "floors.json",

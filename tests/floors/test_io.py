@@ -19,7 +19,7 @@ from mfmap.floors.io import (
     write_floors_json,
 )
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import building_walk, synthetic_trace
+from mfmap.sim.traces import building_walk, synthetic_trace
 
 
 def _write(path: Path, lines: list[str]) -> Path:

@@ -7,7 +7,7 @@ import numpy as np
 from mfmap.floors.config import FloorsConfig
 from mfmap.floors.motion import motion_from_imu, motion_from_odometry
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import Leg, synthetic_trace
+from mfmap.sim.traces import Leg, synthetic_trace
 from mfmap.types import ImuSeries, OdomSeries, TransitionKind
 
 START_NS = 1_700_000_000_000_000_000

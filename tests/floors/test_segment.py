@@ -9,7 +9,7 @@ import pytest
 from mfmap.errors import MissingDataError
 from mfmap.floors.config import FloorsConfig
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import Leg, SyntheticTrace, building_walk, synthetic_trace
+from mfmap.sim.traces import Leg, SyntheticTrace, building_walk, synthetic_trace
 from mfmap.types import FloorSegmentation, PressureSeries, TransitionKind
 
 

@@ -12,7 +12,7 @@ import pytest
 from mfmap.floors.config import FloorsConfig
 from mfmap.floors.motion import motion_from_odometry
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import sim_barometer
+from mfmap.sim.traces import sim_barometer
 from mfmap.types import FloorSegmentation
 
 SCENARIOS = ["tiny", "two-floor", "three-floor-revisit", "three-floor-drift", "stairs", "single-floor", "long"]

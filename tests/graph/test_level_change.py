@@ -9,7 +9,7 @@ import numpy as np
 from mfmap.config import MfmapConfig
 from mfmap.floors.levels import level_change
 from mfmap.floors.segment import segment_pressure
-from mfmap.floors.synthetic import sim_barometer
+from mfmap.sim.traces import sim_barometer
 from mfmap.types import FloorSegmentation
 
 

@@ -8,7 +8,7 @@ decoded values. Messages are built with rosbags' message classes and serialised 
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -219,21 +219,43 @@ def messages(store: Typestore) -> Iterator[tuple[str, str, int, Any]]:
     yield from out
 
 
-def write_log(folder: Path, fmt: str) -> Path:
-    """Write the standard test log in `fmt` under `folder`; returns the path to open."""
+Item = tuple[str, str, int, Any]
+Edit = Callable[[Typestore, list[Item]], Iterable[Item]]
+
+
+def write_log(folder: Path, fmt: str, edit: Edit | None = None) -> Path:
+    """Write the standard test log in `fmt` under `folder`; returns the path to open.
+
+    `edit(store, items)` may change the (topic, msgtype, log_time_ns, message) items first; they
+    are written in the order it returns them (the recording order)."""
     folder.mkdir(parents=True, exist_ok=True)
+
+    def items(store: Typestore) -> Iterable[Item]:
+        out = list(messages(store))
+        return edit(store, out) if edit is not None else out
+
     if fmt in ("mcap-ros2", "mcap-ros1"):
-        return _write_mcap(folder / "log.mcap", ros1=fmt == "mcap-ros1")
+        store = typestore(fmt == "mcap-ros1")
+        return write_mcap_items(folder / "log.mcap", items(store), store, ros1=fmt == "mcap-ros1")
     if fmt.startswith("ros1-"):
-        return _write_ros1(folder / "log.bag", fmt.split("-", 1)[1])
+        return _write_ros1(folder / "log.bag", fmt.split("-", 1)[1], items)
     if fmt.startswith("ros2-"):
-        return _write_ros2(folder / "log", fmt.split("-", 1)[1])
+        return _write_ros2(folder / "log", fmt.split("-", 1)[1], items)
     raise ValueError(fmt)
 
 
 def _write_mcap(path: Path, ros1: bool, **writer_kw: Any) -> Path:
     store = typestore(ros1)
     return write_mcap_items(path, messages(store), store, ros1=ros1, **writer_kw)
+
+
+def restamp(store: Typestore, msg: Any, stamp_ns: int) -> Any:
+    """The message with its header stamp set to stamp_ns (a copy)."""
+    import copy
+
+    out = copy.copy(msg)
+    out.header = _header(store, stamp_ns, msg.header.frame_id)
+    return out
 
 
 def write_mcap_items(
@@ -280,7 +302,8 @@ def cloud_msg(store: Typestore, k: int, stamp_ns: int) -> Any:
     return _cloud(store, k, stamp_ns)
 
 
-def _write_ros1(path: Path, compression: str) -> Path:
+def _write_ros1(path: Path, compression: str,
+                items: Callable[[Typestore], Iterable[Item]] = messages) -> Path:
     from rosbags.rosbag1 import Writer
 
     store = typestore(ros1=True)
@@ -291,21 +314,22 @@ def _write_ros1(path: Path, compression: str) -> Path:
     w.chunk_threshold = 4096
     with w:
         conns: dict[str, Any] = {}
-        for topic, msgtype, t, msg in messages(store):
+        for topic, msgtype, t, msg in items(store):
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, msgtype, typestore=store)
             w.write(conns[topic], t, store.serialize_ros1(msg, msgtype))
     return path
 
 
-def _write_ros2(path: Path, storage: str) -> Path:
+def _write_ros2(path: Path, storage: str,
+                items: Callable[[Typestore], Iterable[Item]] = messages) -> Path:
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     store = typestore(ros1=False)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(path, version=9, storage_plugin=plugin) as w:
         conns: dict[str, Any] = {}
-        for topic, msgtype, t, msg in messages(store):
+        for topic, msgtype, t, msg in items(store):
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, msgtype, typestore=store)
             w.write(conns[topic], t, store.serialize_cdr(msg, msgtype))

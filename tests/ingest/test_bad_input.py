@@ -189,3 +189,78 @@ def test_cli_info_table_and_json(written_log: LogPath) -> None:
     assert res.returncode == 0, res.stderr
     assert "(lidar: not chosen)" in res.stdout
     assert "/lidar2/points (3 msgs)" in res.stderr
+
+
+def _one_line(res: subprocess.CompletedProcess[str]) -> str:
+    assert res.returncode == 1, (res.stdout, res.stderr)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mfmap: error: "), res.stderr
+    return lines[0]
+
+
+def test_a_db3_path_reads_that_file_not_a_log_beside_it(tmp_path: Path) -> None:
+    """A .db3 named on its own once opened its folder and read a different .mcap lying there,
+    under the .db3's name."""
+    bag = lw.write_log(tmp_path / "bag", "ros2-sqlite3")
+    loose = tmp_path / "loose"
+    loose.mkdir()
+    db3 = loose / "alone.db3"
+    db3.write_bytes(next(bag.glob("*.db3")).read_bytes())
+    store = lw.typestore(ros1=False)
+    other = [("/other/pressure", "sensor_msgs/msg/FluidPressure", lw.T0_NS,
+              lw.pressure_msg(store, lw.T0_NS, 1e5))]
+    lw.write_mcap_items(loose / "other.mcap", other, store)
+    with open_log(db3) as src:
+        assert src.format == "ros2"
+        assert {t.name for t in src.topics} == set(lw.EXPECTED.counts)
+        assert src.count("baro") == lw.BARO_N
+    # Named inside its bag (metadata.yaml lists it): the bag.
+    with open_log(next(bag.glob("*.db3"))) as src:
+        assert {t.name: t.count for t in src.topics} == lw.EXPECTED.counts
+
+
+def test_two_recordings_in_one_folder_are_refused(tmp_path: Path) -> None:
+    """Two unrelated .mcap files in a folder were merged into one log four years long."""
+    store = lw.typestore(ros1=False)
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    four_years = 4 * 365 * 86_400 * 10**9
+    for name, t0 in (("a.mcap", lw.T0_NS), ("b.mcap", lw.T0_NS + four_years)):
+        items = [("/pressure", "sensor_msgs/msg/FluidPressure", t0 + i * 10**8,
+                  lw.pressure_msg(store, t0 + i * 10**8, 1e5)) for i in range(20)]
+        lw.write_mcap_items(folder / name, items, store)
+    with pytest.raises(LogError, match=r"holds \.mcap files of different recordings: b\.mcap starts "
+                                       r"126143998 s after a\.mcap ends"):
+        open_log(folder)
+    # Two files that follow on from each other (a split recording) are one log.
+    items = [("/pressure", "sensor_msgs/msg/FluidPressure", lw.T0_NS + (20 + i) * 10**8,
+              lw.pressure_msg(store, lw.T0_NS + (20 + i) * 10**8, 1e5)) for i in range(20)]
+    lw.write_mcap_items(folder / "b.mcap", items, store)
+    with open_log(folder) as src:
+        assert src.count("baro") == 40 and src.duration_s == pytest.approx(3.9)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("topics_with_message_count", 7),
+    ("topics_with_message_count", [7]),
+    ("relative_file_paths", 5),
+    ("storage_identifier", ["sqlite3"]),
+])
+def test_garbage_in_metadata_yaml_is_one_line(tmp_path: Path, field: str, value: object) -> None:
+    bag = lw.write_log(tmp_path, "ros2-sqlite3")
+    meta = bag / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    doc["rosbag2_bagfile_information"][field] = value
+    meta.write_text(yaml.safe_dump(doc))
+    line = _one_line(cli("info", str(bag)))
+    assert "metadata.yaml" in line or str(bag) in line
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), float("-inf")])
+def test_a_barometer_of_nothing_but_nan_or_inf_is_one_line(tmp_path: Path, value: float) -> None:
+    """Once an IndexError from floors/segment.py."""
+    path = _baro_only(tmp_path / "p.mcap", [value] * 200)
+    with open_log(path) as src, pytest.raises(DecodeError, match="every barometer reading is NaN"):
+        src.pressure()
+    line = _one_line(cli("floors", str(path)))
+    assert "p.mcap topic /pressure: every barometer reading is NaN or infinite (200 messages)" in line

@@ -176,6 +176,42 @@ def test_laserscan_drops_invalid_ranges() -> None:
 
 
 @pytest.mark.parametrize(
+    ("increment", "reversed_time", "want_ns"),
+    [
+        (1e-4, False, [0, 100_000, 200_000]),
+        # The stamp is the last beam's time.
+        (-1e-4, False, [0, -100_000, -200_000]),
+        # rplidar_ros: the array runs against the sweep.
+        (1e-4, True, [200_000, 100_000, 0]),
+        # A beam a second or more after the one before it is no per-beam time, either way.
+        (1.5, False, None),
+        (-2.0, True, None),
+        (float("nan"), False, None),
+    ],
+)
+def test_laserscan_beam_times(increment: float, reversed_time: bool, want_ns: list[int] | None) -> None:
+    msg = SimpleNamespace(
+        header=SimpleNamespace(frame_id="laser"), angle_min=0.0, angle_increment=0.1,
+        time_increment=increment, range_min=0.1, range_max=10.0,
+        ranges=np.array([1.0, 2.0, 3.0], np.float32))
+    s = decode_laserscan(msg, STAMP_NS, reversed_time)
+    if want_ns is None:
+        assert s.t_offset_ns is None
+    else:
+        assert s.t_offset_ns is not None
+        np.testing.assert_array_equal(s.t_offset_ns, want_ns)
+
+
+def test_laserscan_without_a_bearing_names_where() -> None:
+    msg = SimpleNamespace(
+        header=SimpleNamespace(frame_id="laser"), angle_min=0.0, angle_increment=float("inf"),
+        time_increment=1e-4, range_min=0.1, range_max=10.0, ranges=np.ones(3, np.float32))
+    with pytest.raises(DecodeError, match=r"^log\.mcap topic /scan: LaserScan with angle_min 0\.0 "
+                       r"and angle_increment inf: no bearing"):
+        decode_laserscan(msg, STAMP_NS, True, "log.mcap topic /scan")
+
+
+@pytest.mark.parametrize(
     ("median", "unit"),
     [(101_325.0, "Pa"), (1013.25, "hPa"), (101.325, "kPa"), (62_000.0, "Pa"), (5.0, None)],
 )

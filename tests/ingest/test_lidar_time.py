@@ -79,8 +79,9 @@ READINGS = [
     ("float64", "s", "absolute", "end"),
     # Livox (xfer_format 0): float64 holding epoch nanoseconds.
     ("float64", "ns", "absolute", "start"),
-    # uint64 epoch ns; float64 epoch ms and us.
+    # uint64 and int64 epoch ns (only 64-bit integers hold them); float64 epoch ms and us.
     ("uint64", "ns", "absolute", "end"),
+    ("int64", "ns", "absolute", "start"),
     ("float64", "ms", "absolute", "start"),
     ("float64", "us", "absolute", "start"),
 ]

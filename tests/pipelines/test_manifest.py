@@ -189,9 +189,46 @@ def test_sim_folder_matches_the_test_fixture_layout(write_manifest: Callable[...
     assert sim_folder(Path("/c"), scaled) == Path("/c/tiny-mcap-4-duration_scale=2.0")
 
 
-@pytest.mark.parametrize("name", ["sim_quick.yaml", "sim_full.yaml"])
+@pytest.mark.parametrize("name", ["sim_quick.yaml", "sim_full.yaml", "sim_seeds.yaml", "stress.yaml"])
 def test_shipped_manifests_load(name: str) -> None:
+    from mfmap.sim import SCENARIOS
+
     m = load_manifest(ROOT / "pipelines" / "manifests" / name)
     assert m.baseline.parent == ROOT / "pipelines" / "baselines"
-    assert all(e.simulate is not None for e in m.logs)
+    assert all(e.simulate is not None and e.simulate.scenario in SCENARIOS for e in m.logs)
     assert len(make_jobs(m, Path("/tmp/x"))) == len(m.logs)
+
+
+def test_stress_manifest_covers_every_condition() -> None:
+    """At least 12 logs from at least 4 buildings, each hard condition in at least two (the
+    routes and buildings only: seconds, no sensors), some on the 2D LaserScan."""
+    from mfmap.sim.run import build_trajectory
+    from mfmap.sim.scenarios import SCENARIOS, building_for
+
+    m = load_manifest(ROOT / "pipelines" / "manifests" / "stress.yaml")
+    assert len(m.logs) >= 12
+    seen: dict[str, int] = {}
+    buildings = set()
+    for e in m.logs:
+        assert e.simulate is not None
+        spec = SCENARIOS[e.simulate.scenario]
+        b = building_for(spec, e.simulate.seed)
+        tr = build_trajectory(spec, b, e.simulate.seed, 1)
+        buildings.add(b.spec)
+        rides = [t for t in tr.transitions if t.kind == "elevator"]
+        walks = [t for t in tr.transitions if t.kind == "stairs"]
+        conditions = {
+            "harsh air": spec.world.outdoor_minus_indoor_k is not None and spec.world.temperature_sensor is not None,
+            "switch-back stairs": b.spec.stairwell.kind == "switchback" and bool(walks),
+            "floor passed on stairs": any(abs(t.to_floor - t.from_floor) > 1 for t in walks),
+            "elevator stop": any(t.t_start_s < d[0] < t.t_end_s for t in rides for d in tr.door_open),
+            "unequal storeys": not b.uniform,
+            "generated building": b.spec.name.startswith("generated"),
+            "storey under 3 m": min(b.storeys_m) < 3.0,
+            "storey over 5.5 m": max(b.storeys_m) >= 5.5,
+            "2D LaserScan": spec.lidar is None and spec.laser is not None,
+        }
+        for k, v in conditions.items():
+            seen[k] = seen.get(k, 0) + int(v)
+    assert len(buildings) >= 4
+    assert all(n >= 2 for n in seen.values()), seen

@@ -4,6 +4,7 @@ used, so a mismatch between what the simulator logs and what it claims shows up 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,19 +19,24 @@ from simtest_helpers import (
     tf_static,
 )
 
-from mfmap.baro import height_from_pressure, pressure_from_height
+from mfmap.sim.atmosphere import AirColumn
 from mfmap.sim.groundtruth import read_ply
 
-SHAFT_XY = np.array([0.3, 2.35])
 
-
-@pytest.fixture(scope="module")
-def lidar_check(tiny: Path) -> dict[str, float]:
+@pytest.fixture(scope="module", params=[("tiny", 0), ("gen-tiny", 0), ("gen-tiny", 2)], ids=lambda p: f"{p[0]}-{p[1]}")
+def lidar_check(request: pytest.FixtureRequest, sim_run: Callable[..., Path]) -> dict[str, float]:
     """Share of lidar points within 8 cm of gt_cloud, with per-point poses (deskewed), with the
-    scan-stamp pose only (not deskewed), and without the extrinsic; for scans outside the cabin."""
+    scan-stamp pose only (not deskewed), and without the extrinsic; for scans outside the cabin.
+    The office block and generated buildings (storeys of their own heights, the shaft's doors
+    facing any way)."""
     from scipy.spatial import cKDTree
 
+    scenario, seed = request.param
+    tiny = sim_run(scenario, seed=seed)
     floors = load_floors(tiny)
+    elevator = next(c for c in floors["connectors"] if c["kind"] == "elevator")
+    shaft_xy = np.array([elevator["x"], elevator["y"]])
+    elevations = np.array(floors["sim"]["elevations_m"])
     start_ns = floors["sim"]["start_ns"]
     gt = GtPose(load_tum(tiny), start_ns)
     cloud, cloud_floor = read_ply(tiny / "gt_cloud.ply")
@@ -45,7 +51,7 @@ def lidar_check(tiny: Path) -> dict[str, float]:
             continue
         t_scan = (stamp_ns(msg) - start_ns) / 1e9
         xyz0, _ = gt.at(np.array([t_scan]))
-        if np.linalg.norm(xyz0[0, :2] - SHAFT_XY) < 1.2 or any(a - 0.1 < t_scan < b for a, b in doors):
+        if np.linalg.norm(xyz0[0, :2] - shaft_xy) < 1.2 or any(a - 0.1 < t_scan < b for a, b in doors):
             continue  # in the cabin or doors open: the cabin is not in gt_cloud
         pts = np.frombuffer(bytes(msg.data), dtype=dt)
         ok = np.isfinite(pts["x"])
@@ -65,7 +71,7 @@ def lidar_check(tiny: Path) -> dict[str, float]:
             share = float(np.mean(d < 0.08))
             if name == "deskewed":
                 # What a robot sees on floor k carries label k in gt_cloud (ceiling included).
-                scan_floor = round(float(xyz0[0, 2]) / floors["sim"]["floor_height_m"])
+                scan_floor = int(np.argmin(np.abs(elevations - float(xyz0[0, 2]))))
                 hit = d < 0.08
                 same_floor.append(float(np.mean(cloud_floor[nn[hit]] == scan_floor)))
             near[name].append(share)
@@ -85,8 +91,9 @@ def test_lidar_points_lie_on_gt_surfaces(lidar_check: dict[str, float]) -> None:
 def test_the_checks_can_fail(lidar_check: dict[str, float]) -> None:
     # Ignoring the extrinsic or the per-point time puts many points off the surfaces.
     assert lidar_check["no_extrinsic"] < 0.8
-    # While moving (up to 0.8 m/s, 0.6 rad/s) one pose per sweep puts ~5 % of points off by > 8 cm.
-    assert lidar_check["moving_stamp"] < lidar_check["moving_deskewed"] - 0.03
+    # While moving (up to 0.8 m/s, 0.6 rad/s) one pose per sweep puts points off by > 8 cm:
+    # ~5 % in the office block's narrow corridors, fewer in the generated buildings' wider ones.
+    assert lidar_check["moving_stamp"] < lidar_check["moving_deskewed"] - 0.015
 
 
 def test_pressure_follows_gt_height(tiny: Path) -> None:
@@ -102,7 +109,8 @@ def test_pressure_follows_gt_height(tiny: Path) -> None:
     t_a, p_a = np.array(t), np.array(p)
     pos, rot = gt.at(t_a)
     h = pos[:, 2] + rot[:, 2, 2] * baro_z
-    expected = pressure_from_height(h, sim["reference_pressure_pa"], sim["temperature_k"])
+    air = AirColumn(sim["temperature_k"], sim["temperature_gradient_k_per_m"], sim["gravity_m_s2"])
+    expected = air.pressure_pa(h, sim["reference_pressure_pa"])
     resid = p_a - expected
     # Remove the slow weather drift (a line) and the known door/HVAC steps; what is left is noise.
     calm = np.ones(len(t_a), bool)
@@ -118,7 +126,7 @@ def test_pressure_follows_gt_height(tiny: Path) -> None:
     t0, t1 = tr["t_start"] - start_ns / 1e9, tr["t_end"] - start_ns / 1e9
     before = p_a[(t_a > t0 - 1.0) & (t_a < t0)].mean()
     after = p_a[(t_a > t1) & (t_a < t1 + 1.0)].mean()
-    dz = height_from_pressure(after, before)
+    dz = air.height_m(after, before)
     assert abs(dz - tr["height_change_m"]) < 0.25
 
 

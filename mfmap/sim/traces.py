@@ -1,20 +1,25 @@
-"""Synthetic barometer traces with known floors, for the floors stage's tests and benchmarks.
+"""Barometer traces with known floors, for the floors stage's tests and benchmarks.
 
-Only the barometer (mfmap.sim writes whole logs): a height profile of stays, elevator rides and
-stair climbs, turned into pressure with mfmap.baro, plus white noise, quantisation, linear
-weather drift, door/HVAC steps and single-sample spikes.
+Only the barometer (`simulate` writes whole logs): a height profile of stays, elevator rides and
+stair climbs, turned into pressure with the simulator's own air column, plus white noise,
+quantisation, linear weather drift, door/HVAC steps and single-sample spikes; and a scenario's
+barometer exactly as `simulate` logs it, without rendering any lidar.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.baro import pressure_from_height
+from mfmap.sim.atmosphere import CALM_AIR
 from mfmap.types import OdomSeries, PressureSeries
+
+if TYPE_CHECKING:
+    from mfmap.sim.world import WorldSpec
 
 F64 = npt.NDArray[np.float64]
 
@@ -139,7 +144,7 @@ def synthetic_trace(
         truth.append(TruthTransition(leg.kind, t0, t1, cur_level, new_level, leg.height_change_m))
         cur_h, cur_level = new_h, new_level
 
-    pressure = pressure_from_height(height, start_pressure_pa)
+    pressure = CALM_AIR.pressure_pa(height, start_pressure_pa)
     pressure = pressure + drift_pa_per_h * t_s / 3600.0
     pressure = pressure + rng.normal(0.0, noise_pa, n)
     still = np.flatnonzero(level >= 0)
@@ -187,25 +192,25 @@ class SimBarometer:
     gt_floors: dict[str, Any]  # the scenario's gt_floors.json document
 
 
-def sim_barometer(scenario: str, seed: int = 0) -> SimBarometer:
+def sim_barometer(scenario: str, seed: int = 0, world: WorldSpec | None = None) -> SimBarometer:
     """Barometer samples exactly as `mfmap simulate` models them (same trajectory, drift,
     transients, noise and rate), odometry twist from the true motion, and gt_floors.json.
 
     Seconds instead of the minutes a full simulated log with lidar takes, so the floors tests
-    can cover every scenario.
+    can cover every scenario. `world` replaces the scenario's (e.g. WorldSpec.harsh()).
     """
     from mfmap.sim import groundtruth
-    from mfmap.sim.building import Building
-    from mfmap.sim.run import build_trajectory, reference_pressure_pa, start_stamp_ns
-    from mfmap.sim.scenarios import SCENARIOS
-    from mfmap.sim.sensors import Barometer
+    from mfmap.sim.run import build_trajectory, make_barometer, start_stamp_ns
+    from mfmap.sim.scenarios import SCENARIOS, building_for
     from mfmap.sim.trajectory import DT_S, RATE_HZ
 
     spec = SCENARIOS[scenario]
-    building = Building(spec.n_floors, spec.floor_height_m, spec.start_floor, seed)
+    if world is not None:
+        spec = dataclasses.replace(spec, world=world)
+    building = building_for(spec, seed)
     traj = build_trajectory(spec, building, seed, 1)
     start_ns = start_stamp_ns(seed)
-    baro = Barometer(spec.baro, traj, reference_pressure_pa(seed), seed)
+    baro = make_barometer(spec, building, traj, seed)
     rate = spec.baro.rate_hz
     ks = np.arange(round(traj.duration_s) * rate)
     # One draw per second of samples, as the log writer makes them: the same values as the log.
