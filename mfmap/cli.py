@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from mfmap import __version__
 from mfmap.errors import MfmapError
@@ -128,13 +129,16 @@ def _parse_topics(items: list[str] | None) -> dict[str, str]:
     return out
 
 
-def _load(config: Path | None, topics: list[str] | None = None) -> MfmapConfig:
+def _load(config: Path | None, topics: list[str] | None = None,
+          assume_identity_extrinsics: bool = False) -> MfmapConfig:
     from mfmap.config import load_config
 
     overrides: dict[str, Any] = {}
     parsed = _parse_topics(topics)
     if parsed:
         overrides["ingest"] = {"topics": parsed}
+    if assume_identity_extrinsics:
+        overrides.setdefault("ingest", {})["assume_identity_extrinsics"] = True
     return load_config(config, overrides)
 
 
@@ -145,27 +149,45 @@ TopicOpt = Annotated[
     list[str] | None,
     typer.Option("--topic", "-t", help="Override a role's topic: ROLE=TOPIC (repeatable)."),
 ]
+AssumeIdentityOpt = Annotated[
+    bool,
+    typer.Option("--assume-identity-extrinsics",
+                 help="Place a sensor frame that no transform connects to the base at the base, "
+                 "unrotated (a warning), instead of stopping."),
+]
 
 
 @app.command()
 def info(
     log: Annotated[Path, typer.Argument(help="MCAP file, ROS 1 bag or ROS 2 bag folder.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    check: Annotated[
+        bool,
+        typer.Option("--check", help="Also read what needs the whole log (barometer unit, 2D "
+                     "beam order) and exit 1 when a build would stop or be wrong."),
+    ] = False,
+    assume_identity: AssumeIdentityOpt = False,
     topic: TopicOpt = None,
     config: ConfigOpt = None,
 ) -> None:
-    """Topics, message types, roles, counts, rates and duration of a log."""
-    cfg = _load(config, topic)
+    """Topics, message types, roles, counts, rates and duration of a log; per sensor its
+    fields, how its per-point time reads, its frame and whether its transform is known."""
+    cfg = _load(config, topic, assume_identity)
     from mfmap.ingest import describe_log
     from mfmap.ingest.report import render_info
 
-    summary = describe_log(log, cfg.ingest)
+    summary = describe_log(log, cfg.ingest, check=check)
     if as_json:
         console.print_json(json.dumps(summary.to_json()))
     else:
         console.print(render_info(summary))
     for warning in summary.warnings:
-        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+        err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    for problem in summary.problems:
+        label = "[red]problem:[/red]" if check else "[yellow]problem:[/yellow]"
+        err_console.print(f"{label} {escape(problem)}", highlight=False, soft_wrap=True)
+    if check and summary.problems:
+        raise typer.Exit(1)
 
 
 @app.command("config")
@@ -236,7 +258,7 @@ def floors(
     else:
         console.print(render_floors(seg))
     for warning in seg.warnings:
-        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+        err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
 
 
 @app.command()
@@ -254,11 +276,12 @@ def build(
             "(by centimetres on some logs: the odometry amplifies the last bits).",
         ),
     ] = 1,
+    assume_identity: AssumeIdentityOpt = False,
     topic: TopicOpt = None,
     config: ConfigOpt = None,
 ) -> None:
     """The whole pipeline: floors, per-floor mapping, building graph, exports."""
-    cfg = _load(config, topic)
+    cfg = _load(config, topic, assume_identity)
     limit_threads(threads)
     from mfmap.pipeline import build as run_build
     from mfmap.pipeline import render_summary
@@ -267,7 +290,7 @@ def build(
                        inputs=[config] if config is not None else [])
     console.print(render_summary(result))
     for warning in result.warnings:
-        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+        err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
 
 
 @app.command("eval")
@@ -388,7 +411,9 @@ def main() -> None:
     except MfmapError as err:
         if _state["debug"]:
             raise
-        err_console.print(f"[red]mfmap: error:[/red] {err}", highlight=False, soft_wrap=True)
+        # A message may hold brackets ([x, y, z]) that rich would take for markup.
+        err_console.print(f"[red]mfmap: error:[/red] {escape(str(err))}", highlight=False,
+                          soft_wrap=True)
         sys.exit(err.exit_code)
     except Interrupted as stop:
         watch.done.set()

@@ -119,7 +119,9 @@ def build(
         from mfmap.ingest import open_log
 
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
-            ingest_at = len(warnings)  # the log's warnings go here, once every stream is read
+            # The ingest warnings are copied last: reading the barometer, the IMU or the scans
+            # can warn too, at any stage.
+            ingest_at = len(warnings)
             if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
                 raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
             check_lidar_density(src, cfg.mapping)
@@ -136,6 +138,11 @@ def build(
                 pool = workers.enter_context(
                     worker_pool(max(cfg.mapping.workers, cfg.export.workers), warm=1,
                                 warm_modules=(*MAPPING_MODULES, "mfmap.export.mapdata")))
+            # Every decision about how the sensors read (per-point time, beam order, mounts),
+            # taken once here, so the worker processes read the log the same way; config.yaml
+            # keeps the user's configuration, report.json the decisions.
+            given = cfg
+            cfg = cfg.model_copy(update={"ingest": src.resolve()})
             extrinsics = src.extrinsics()
             # Before any work: a configured camera's problem stops the build here.
             cameras = find_depth_cameras(src, cfg)
@@ -192,7 +199,6 @@ def build(
             warnings += [f"export: {w}" for w in cabin_warnings]
             timings["cabins"] = time.perf_counter() - t0
 
-            warnings[ingest_at:ingest_at] = [f"ingest: {w}" for w in src.warnings]
             t0 = time.perf_counter()
             counts = {
                 "floors": len(seg.floors),
@@ -205,8 +211,10 @@ def build(
                 **({"depth_images": maps.images} if camera_images else {}),
                 "pressure_samples": len(pressure) if pressure is not None else 0,
             }
+            warnings[ingest_at:ingest_at] = [f"ingest: {w}" for w in src.warnings]
             report: dict[str, Any] = {
                 "log": str(log),
+                "ingest": src.report(),
                 "summary": {
                     "floors": len(seg.floors),
                     "transitions": len(seg.transitions),
@@ -221,7 +229,7 @@ def build(
             }
             with progress.stage("export", total=None):
                 summary = write_outputs(
-                    partial, seg, mapping, graph, trajectory, maps, report, dump_config(cfg),
+                    partial, seg, mapping, graph, trajectory, maps, report, dump_config(given),
                     title=f"mfmap build of {log.name}", html=cfg.export.html_report,
                     pool=pool, pressure_png=pressure_png, cabins=cabins,
                 )

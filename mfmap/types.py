@@ -34,6 +34,9 @@ class Role(str, Enum):
 # ROS message type (normalised "pkg/msg/Name") -> role.
 ROLE_BY_TYPE: dict[str, Role] = {
     "sensor_msgs/msg/PointCloud2": Role.LIDAR,
+    # Livox's own scan message (its definition is read from the log).
+    "livox_ros_driver2/msg/CustomMsg": Role.LIDAR,
+    "livox_ros_driver/msg/CustomMsg": Role.LIDAR,
     "sensor_msgs/msg/LaserScan": Role.SCAN2D,
     "sensor_msgs/msg/FluidPressure": Role.BARO,
     "sensor_msgs/msg/Imu": Role.IMU,

@@ -84,6 +84,10 @@ def test_fast_preset_loads_and_changes_only_mapping() -> None:
     ("floors: {stop_vertical_speed_m_s: 0.5}", r"vertical speeds must be stop < min < max"),
     ("mapping: {workers: 100000}", r"'mapping\.workers': Input should be less than or equal to 256"),
     ("eval: {fscore_thresholds_m: [0.05, -1]}", r"must be one or more distances in \(0, 100\] m"),
+    ("ingest: {extrinsics: {lidar: {xyz: [0, 0, 500]}}}",
+     r"'ingest\.extrinsics\.lidar\.xyz\.2': Input should be less than or equal to 100"),
+    ("ingest: {extrinsics: {lidar: {rpy_deg: [0, .nan, 0]}}}",
+     r"'ingest\.extrinsics\.lidar\.rpy_deg\.1': Input should be a finite number"),
 ])
 def test_values_that_would_fail_a_stage_are_refused_at_load(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "c.yaml"

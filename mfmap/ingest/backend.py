@@ -45,6 +45,10 @@ class Backend(Protocol):
         """The decoded message object (attribute access like rosbags' message classes)."""
         ...
 
+    def typestore(self, message: RawMessage) -> Any:
+        """The rosbags typestore `deserialize` uses for this message (its field definitions)."""
+        ...
+
     def raw_size(self, message: RawMessage) -> int:
         """Bytes of serialised data."""
         ...

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from mfmap.errors import DecodeError
+from mfmap.ingest.lidartime import TIME_FIELDS, AzimuthSpec, TimeSpec
 from mfmap.types import Cloud, Scan2D
 
 # sensor_msgs/PointField datatype -> numpy type character code (byte order added later).
@@ -33,8 +34,6 @@ POINTFIELD_DTYPES: dict[int, str] = {
 # A single scan larger than this is a corrupt header, not a lidar (a 128x2048 Ouster scan with
 # every field is about 25 MB).
 DEFAULT_MAX_CLOUD_BYTES = 1 << 30
-
-_TIME_FIELDS = ("t", "time", "timestamp")
 
 _VOID12 = np.dtype((np.void, 12))
 
@@ -60,9 +59,18 @@ class CloudLayout:
     width: int
     point_step: int
     row_step: int
-    time_field: str | None
+    time_fields: tuple[str, ...]  # the fields that may hold a point's time, present in the cloud
     has_intensity: bool
     has_ring: bool
+    # Every field of the message as (name, offset, numpy type or '?', count), for `mfmap info`.
+    fields: tuple[tuple[str, int, str, int], ...] = ()
+
+    @property
+    def time_field(self) -> str | None:
+        return self.time_fields[0] if self.time_fields else None
+
+    def dtype_name(self, field: str) -> str:
+        return str(np.dtype(self.dtype.fields[field][0]).newbyteorder("=").name)  # type: ignore[index]
 
 
 def cloud_layout(
@@ -75,10 +83,12 @@ def cloud_layout(
     data_len: int,
     where: str,
     max_bytes: int = DEFAULT_MAX_CLOUD_BYTES,
+    time_fields: tuple[str, ...] = TIME_FIELDS,
 ) -> CloudLayout:
     """Check a PointCloud2's sizes against its data and build the structured dtype.
 
-    `where` names the file and topic for the error message.
+    `where` names the file and topic for the error message; `time_fields` are the fields kept
+    as candidates for a point's time.
     """
     order = ">" if is_bigendian else "<"
     if height < 0 or width < 0 or point_step < 0 or row_step < 0:
@@ -117,7 +127,7 @@ def cloud_layout(
     names: list[str] = []
     formats: list[str] = []
     offsets: list[int] = []
-    wanted = ["x", "y", "z", "intensity", "ring", *_TIME_FIELDS]
+    wanted = list(dict.fromkeys(["x", "y", "z", "intensity", "ring", *time_fields]))
     for name in wanted:
         f = by_name.get(name)
         if f is None:
@@ -139,7 +149,11 @@ def cloud_layout(
     dtype = np.dtype(
         {"names": names, "formats": formats, "offsets": offsets, "itemsize": max(point_step, 1)}
     )
-    time_field = next((n for n in _TIME_FIELDS if n in names), None)
+    listed = tuple(
+        (str(f.name), int(f.offset), np.dtype(POINTFIELD_DTYPES[int(f.datatype)]).name
+         if int(f.datatype) in POINTFIELD_DTYPES else "?", int(f.count))
+        for f in fields
+    )
     return CloudLayout(
         dtype=dtype,
         span=_span_dtype(names, formats, offsets),
@@ -148,9 +162,10 @@ def cloud_layout(
         width=width,
         point_step=point_step,
         row_step=row_step,
-        time_field=time_field,
+        time_fields=tuple(n for n in time_fields if n in names and n not in ("x", "y", "z")),
         has_intensity="intensity" in names,
         has_ring="ring" in names,
+        fields=listed,
     )
 
 
@@ -176,38 +191,52 @@ def _span_dtype(names: list[str], formats: list[str], offsets: list[int]) -> np.
     )
 
 
+Timing = TimeSpec | AzimuthSpec | None
+
+
 def decode_pointcloud2(
     msg: Any,
     stamp_ns: int,
     where: str = "",
     max_bytes: int = DEFAULT_MAX_CLOUD_BYTES,
     drop_zero: bool = True,
+    timing: Timing = None,
 ) -> Cloud:
     """sensor_msgs/PointCloud2 -> Cloud (sensor frame, non-finite points dropped).
 
     `drop_zero` also drops points at exactly (0, 0, 0), which Ouster and other drivers send for
-    no-returns in organised clouds.
+    no-returns in organised clouds. `timing` gives each point's time (a decided reading of a
+    time field, or the azimuth); without it the cloud has no per-point time.
     """
+    layout, buf = pointcloud2_layout(msg, where, max_bytes)
+    return decode_with_layout(layout, buf, stamp_ns, str(msg.header.frame_id), drop_zero, timing)
+
+
+def pointcloud2_layout(msg: Any, where: str = "", max_bytes: int = DEFAULT_MAX_CLOUD_BYTES,
+                       time_fields: tuple[str, ...] = TIME_FIELDS) -> tuple[CloudLayout, Any]:
+    """The validated layout of a PointCloud2 message and its data buffer."""
     data = msg.data
     buf = data if isinstance(data, (bytes, bytearray, memoryview)) else np.asarray(data)
     data_len = len(buf) if not isinstance(buf, np.ndarray) else int(buf.nbytes)
     key = getattr(msg, "layout_key", b"")
-    layout = _LAYOUTS.get((key, data_len, max_bytes)) if key else None
+    cache_key = (key, data_len, max_bytes, time_fields)
+    layout = _LAYOUTS.get(cache_key) if key else None
     if layout is None:
-        layout = _layout_of(msg, data_len, where, max_bytes)
+        layout = _layout_of(msg, data_len, where, max_bytes, time_fields)
         if key:
             if len(_LAYOUTS) >= 64:
                 _LAYOUTS.clear()
-            _LAYOUTS[(key, data_len, max_bytes)] = layout
-    return decode_with_layout(layout, buf, stamp_ns, str(msg.header.frame_id), drop_zero)
+            _LAYOUTS[cache_key] = layout
+    return layout, buf
 
 
-# Validated layouts by (serialised layout bytes, data length, size limit): the checks and the
-# dtypes are built once per sensor, not once per scan.
-_LAYOUTS: dict[tuple[bytes, int, int], CloudLayout] = {}
+# Validated layouts by (serialised layout bytes, data length, size limit, time fields): the
+# checks and the dtypes are built once per sensor, not once per scan.
+_LAYOUTS: dict[tuple[bytes, int, int, tuple[str, ...]], CloudLayout] = {}
 
 
-def _layout_of(msg: Any, data_len: int, where: str, max_bytes: int) -> CloudLayout:
+def _layout_of(msg: Any, data_len: int, where: str, max_bytes: int,
+               time_fields: tuple[str, ...]) -> CloudLayout:
     return cloud_layout(
         list(msg.fields),
         int(msg.height),
@@ -218,17 +247,57 @@ def _layout_of(msg: Any, data_len: int, where: str, max_bytes: int) -> CloudLayo
         data_len,
         where,
         max_bytes,
+        time_fields,
     )
 
 
+@dataclass(frozen=True)
+class DecodedPoints:
+    """The kept points of one scan, in storage order, and the raw values of its time fields."""
+
+    xyz: np.ndarray[Any, np.dtype[np.float32]]
+    intensity: np.ndarray[Any, np.dtype[np.float32]] | None
+    ring: np.ndarray[Any, np.dtype[np.uint16]] | None
+    times: dict[str, np.ndarray[Any, Any]]
+
+
 def decode_with_layout(
-    layout: CloudLayout, buf: Any, stamp_ns: int, frame_id: str, drop_zero: bool = True
+    layout: CloudLayout, buf: Any, stamp_ns: int, frame_id: str, drop_zero: bool = True,
+    timing: Timing = None,
 ) -> Cloud:
     """Decode the raw point bytes of a validated layout."""
+    wanted = (timing.field,) if isinstance(timing, TimeSpec) else ()
+    pts = decode_points(layout, buf, drop_zero, wanted)
+    return cloud_of(pts, stamp_ns, frame_id, timing)
+
+
+def cloud_of(pts: DecodedPoints, stamp_ns: int, frame_id: str, timing: Timing) -> Cloud:
+    """A Cloud of decoded points with each point's time from `timing`."""
+    t_offset = None
+    if isinstance(timing, TimeSpec) and timing.field in pts.times:
+        t_offset = timing.offsets_ns(pts.times[timing.field], stamp_ns)
+    elif isinstance(timing, AzimuthSpec):
+        t_offset = timing.offsets_ns(pts.xyz)
+    return Cloud(
+        stamp_ns=stamp_ns,
+        frame_id=frame_id,
+        xyz=pts.xyz,
+        intensity=pts.intensity,
+        ring=pts.ring,
+        t_offset_ns=t_offset,
+    )
+
+
+def decode_points(
+    layout: CloudLayout, buf: Any, drop_zero: bool = True, time_fields: tuple[str, ...] | None = None
+) -> DecodedPoints:
+    """The kept points of a validated layout; the raw values of `time_fields` (default: every
+    candidate time field of the layout)."""
+    fields = layout.time_fields if time_fields is None else time_fields
     h, w = layout.height, layout.width
     n = h * w
     if n == 0:
-        return Cloud(stamp_ns, frame_id, np.zeros((0, 3), np.float32))
+        return DecodedPoints(np.zeros((0, 3), np.float32), None, None, {})
     # The wanted fields of every point are first packed into one contiguous record array (one
     # strided pass over the message, which also drops any row padding); the validity test and
     # the gather of kept points then run on that dense copy, which is faster than working on
@@ -276,46 +345,19 @@ def decode_with_layout(
         xyz[:, 0], xyz[:, 1], xyz[:, 2] = sel["x"], sel["y"], sel["z"]
     intensity = sel["intensity"].astype(np.float32) if layout.has_intensity else None
     ring = sel["ring"].astype(np.uint16) if layout.has_ring else None
-    t_offset = None
-    if layout.time_field is not None:
-        t_offset = _time_offsets_ns(sel[layout.time_field], layout.time_field, stamp_ns)
-    return Cloud(
-        stamp_ns=stamp_ns,
-        frame_id=frame_id,
-        xyz=xyz,
-        intensity=intensity,
-        ring=ring,
-        t_offset_ns=t_offset,
-    )
+    times = {name: sel[name].astype(sel[name].dtype.newbyteorder("="))
+             for name in fields if name in names}
+    return DecodedPoints(xyz, intensity, ring, times)
 
 
-def _time_offsets_ns(
-    values: np.ndarray[Any, Any], name: str, stamp_ns: int
-) -> np.ndarray[Any, np.dtype[np.int64]]:
-    """Per-point time -> int64 ns relative to the scan stamp.
+def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False, where: str = "") -> Scan2D:
+    """sensor_msgs/LaserScan -> 2D points; NaN, inf and out-of-range readings dropped.
 
-    `t` is an integer ns offset (Ouster); `time` float seconds relative to the stamp (Velodyne);
-    `timestamp` float seconds since the epoch (Hesai, Livox). A `time` or `timestamp` that is
-    larger than a day is taken as absolute seconds, and an integer beyond 1e15 as absolute ns.
+    Beam i is measured at stamp + i * time_increment (a negative increment: the stamp is the
+    last beam's time); `reversed_time` takes the array as running against the sweep, beam i at
+    (n - 1 - i) * time_increment, as rplidar_ros publishes a clockwise scanner (its ranges
+    reversed into counter-clockwise order, its time_increment left positive).
     """
-    if values.dtype.kind in "iu":
-        v = values.astype(np.int64)
-        # Only 64-bit integers can hold absolute epoch nanoseconds.
-        if values.dtype.itemsize == 8 and v.size and max(int(v.max()), -int(v.min())) > 10**15:
-            return v - np.int64(stamp_ns)
-        return v
-    v64 = values.astype(np.float64)
-    absolute = name == "timestamp" or (v64.size > 0 and float(np.nanmax(np.abs(v64))) > 86400.0)
-    if absolute:
-        # Subtract whole seconds first: float64 epoch seconds keep only ~0.2 us resolution.
-        sec, rem_ns = divmod(stamp_ns, 1_000_000_000)
-        rel_s = (v64 - float(sec)) - rem_ns / 1e9
-        return np.round(rel_s * 1e9).astype(np.int64)
-    return np.round(v64 * 1e9).astype(np.int64)
-
-
-def decode_laserscan(msg: Any, stamp_ns: int, where: str = "") -> Scan2D:
-    """sensor_msgs/LaserScan -> 2D points; NaN, inf and out-of-range readings dropped."""
     ranges = np.asarray(msg.ranges, dtype=np.float32)
     i = np.arange(ranges.shape[0])
     angle_min, increment = float(msg.angle_min), float(msg.angle_increment)
@@ -333,8 +375,13 @@ def decode_laserscan(msg: Any, stamp_ns: int, where: str = "") -> Scan2D:
     a = angles[keep]
     xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1).astype(np.float32)
     t_offset = None
-    if 0 < float(msg.time_increment) < 1.0:  # a sweep of seconds is no per-beam time
-        t_offset = np.round(i[keep] * float(msg.time_increment) * 1e9).astype(np.int64)
+    increment_ns = float(msg.time_increment) * 1e9
+    # A beam apart by a second or more is no per-beam time (a sweep of seconds).
+    if increment_ns != 0.0 and abs(increment_ns) < 1e9:
+        beam = i[keep]
+        if reversed_time:
+            beam = ranges.shape[0] - 1 - beam
+        t_offset = np.round(beam * increment_ns).astype(np.int64)
     return Scan2D(stamp_ns=stamp_ns, frame_id=str(msg.header.frame_id), xy=xy, t_offset_ns=t_offset)
 
 

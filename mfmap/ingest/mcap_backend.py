@@ -100,6 +100,7 @@ class _Decoders:
         self.path = path
         self.stores: dict[str, Typestore] = {}
         self.registered: dict[tuple[str, str], Callable[[Any], Any]] = {}
+        self.store_of: dict[tuple[str, str], Typestore] = {}
         self.ros2_fallback = ros2_fallback
 
     def get(self, schema: Schema | None, channel: Channel) -> Callable[[Any], Any]:
@@ -142,6 +143,7 @@ class _Decoders:
                 raise DecodeError(f"cannot deserialise a '{name}' message: {_first_line(err)}", where) from err
 
         self.registered[key] = decode
+        self.store_of[key] = store
         return decode
 
 
@@ -199,6 +201,12 @@ class McapBackend:
     def deserialize(self, message: RawMessage) -> Any:
         schema, channel, data = message.payload
         return self._decoders.get(schema, channel)(data)
+
+    def typestore(self, message: RawMessage) -> Typestore:
+        schema, channel, _data = message.payload
+        self._decoders.get(schema, channel)
+        name = normalise_msgtype(schema.name) if schema is not None else ""
+        return self._decoders.store_of[(channel.message_encoding, name)]
 
     def raw_size(self, message: RawMessage) -> int:
         return len(message.payload[2])

@@ -56,4 +56,24 @@ def render_info(summary: LogSummary) -> RenderableType:
             _clock(t.first_ns),
             _clock(t.last_ns),
         )
-    return Group(head, topics)
+    if not summary.sensors:
+        return Group(head, topics)
+    sensors = table(
+        [("sensor", "left"), ("frame", "left"), ("transform", "left"), ("fields", "left"),
+         ("time", "left"), ("deskew", "left")],
+        show_header=True, header_style="bold", box=None, pad_edge=False,
+        title="sensors", title_justify="left",
+    )
+    for row in summary.sensors:
+        transform = str(row.get("transform", "-"))
+        style = "red" if transform == "missing" else "yellow" if transform.startswith("identity") else ""
+        mount = row.get("mount")
+        sensors.add_row(
+            f"{row['role']} {row['topic']}",
+            row.get("frame") or "-",
+            Text(transform + (f" ({mount})" if mount else ""), style=style),
+            row.get("fields", "-"),
+            row.get("time", "-"),
+            row.get("deskew", "-"),
+        )
+    return Group(head, topics, Text(""), sensors)

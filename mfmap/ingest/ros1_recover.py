@@ -219,8 +219,12 @@ class Ros1RecoveryBackend:
             conn = self._scan.conns[cid]
             yield RawMessage(conn.topic, t, (conn, self._data(chunk_pos, start, length)))
 
-    def deserialize(self, message: RawMessage) -> Any:
-        conn, raw = message.payload
+    def typestore(self, message: RawMessage) -> Any:
+        self._register(message)
+        return self._store
+
+    def _register(self, message: RawMessage) -> str:
+        conn, _raw = message.payload
         name = normalise_msgtype(conn.msgtype)
         where = f"{self.path} topic {conn.topic}"
         if name not in self._registered:
@@ -231,6 +235,12 @@ class Ros1RecoveryBackend:
             except Exception as err:
                 raise DecodeError(f"cannot parse the message definition of '{name}': {err}", where) from err
             self._registered.add(name)
+        return name
+
+    def deserialize(self, message: RawMessage) -> Any:
+        conn, raw = message.payload
+        where = f"{self.path} topic {conn.topic}"
+        name = self._register(message)
         try:
             return self._store.deserialize_ros1(raw, name)
         except Exception as err:

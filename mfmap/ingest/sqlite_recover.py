@@ -347,6 +347,10 @@ class Ros2SqliteRecoveryBackend:
             raise DecodeError(f"message type '{msgtype}' has no definition", where)
         return self._latest
 
+    def typestore(self, message: RawMessage) -> Typestore:
+        topic, _data, scan = message.payload
+        return self._store_for(topic.msgtype, scan, f"{scan.path} topic {topic.name}")
+
     def deserialize(self, message: RawMessage) -> Any:
         topic, data, scan = message.payload
         where = f"{scan.path} topic {topic.name}"

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mfmap.mapping.config import MappingConfig
-from mfmap.mapping.geometry import inverse, yaw_pose
+from mfmap.mapping.geometry import inverse, yaw_pose, yaw_rad
 from mfmap.mapping.registration import (
     IcpTarget,
     Registration,
@@ -23,6 +23,7 @@ from mfmap.mapping.registration import (
     information,
     to_o3d,
 )
+from mfmap.mapping.scan2d import Map2D, grid_downsample_2d, icp_2d
 from mfmap.types import F32, F64, Keyframe, PoseEdge
 
 RINGS = 20
@@ -91,6 +92,25 @@ def plane_fit(source: F64, target: IcpTarget, transform: F64,
     return len(found) / len(src), float(np.sqrt(np.mean(residual**2)))
 
 
+def line_fit(source: F64, target: Map2D, x: float, y: float, yaw: float,
+             max_distance_m: float) -> tuple[float, float, F64]:
+    """(share of source points near a target line, their point-to-line RMSE, the 3x3
+    information of x, y, yaw those lines give) of the 2D pose (x, y, yaw)."""
+    assert target.tree is not None
+    c, s = np.cos(yaw), np.sin(yaw)
+    moved = source @ np.array([[c, s], [-s, c]]) + [x, y]
+    dist, idx = target.tree.query(moved, distance_upper_bound=max_distance_m)
+    ok = np.isfinite(dist)
+    if not ok.any():
+        return 0.0, float("inf"), np.zeros((3, 3))
+    n = target.normals[idx[ok]]
+    residual = ((moved[ok] - target.points[idx[ok]]) * n).sum(axis=1)
+    p = source[ok]
+    drot = np.stack([-s * p[:, 0] - c * p[:, 1], c * p[:, 0] - s * p[:, 1]], axis=1)
+    jac = np.stack([n[:, 0], n[:, 1], (drot * n).sum(axis=1)], axis=1)
+    return float(ok.mean()), float(np.sqrt(np.mean(residual**2))), jac.T @ jac
+
+
 @dataclass
 class LoopStats:
     candidates: int = 0
@@ -111,11 +131,14 @@ class LoopCheck:
 class LoopCloser:
     """Keeps the keyframes of every floor and proposes verified loop edges, same floor only."""
 
-    def __init__(self, cfg: MappingConfig, group_of: Callable[[Keyframe], int] | None = None) -> None:
+    def __init__(self, cfg: MappingConfig, group_of: Callable[[Keyframe], int] | None = None,
+                 planar: bool = False) -> None:
         """`group_of`: only keyframes of another group are candidates (the parallel chunks' merge,
-        whose workers searched the loops within each chunk)."""
+        whose workers searched the loops within each chunk). `planar`: the keyframes are 2D
+        scans (one plane of points), verified by a fit in the plane (`verify_2d`)."""
         self.cfg = cfg
         self.group_of = group_of
+        self.planar = planar
         self.stats = LoopStats()
         self._keyframes: dict[int, Keyframe] = {}
         self._desc: dict[int, F64] = {}
@@ -129,7 +152,8 @@ class LoopCloser:
         if self.cfg.loop_closure:
             for other_id, guess in self._candidates(kf, desc):
                 self.stats.candidates += 1
-                check = self.verify(self.submap(other_id), kf.cloud, guess)
+                verify = self.verify_2d if self.planar else self.verify
+                check = verify(self.submap(other_id), kf.cloud, guess)
                 if check.accepted and check.registration is not None:
                     # Repeating structure (pillars, doors) aliases by metres; drift does not.
                     odom_rel = inverse(self._keyframes[other_id].pose) @ kf.pose
@@ -236,6 +260,47 @@ class LoopCloser:
                 return LoopCheck(False, "ambiguous", result)
         info = information(to_o3d(src_f), tgt_f.cloud, check_distance, best.transform)
         eig = np.linalg.eigvalsh(info[3:, 3:])
+        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
+            return LoopCheck(False, "degenerate", result)
+        return LoopCheck(True, "ok", result)
+
+    def verify_2d(self, target_points: F32 | F64, source_points: F32 | F64, guess: F64) -> LoopCheck:
+        """`verify` for 2D scans: point-to-line ICP in the plane (x, y, yaw), the same gates.
+
+        A 3D point-to-plane fit has nothing to hold on a flat cloud: every normal is vertical,
+        and x, y and yaw are unobservable. The lines of the target (its points with a clear
+        direction) give the fit, its overlap and RMSE, and the degeneracy check: in a corridor
+        the translation along the walls is unconstrained, its information near zero.
+        """
+        coarse_m, fine_m = 0.1, 0.05
+        target = Map2D(fine_m, 1)
+        target.add(np.asarray(target_points, dtype=np.float64)[:, :2])
+        source = grid_downsample_2d(np.asarray(source_points, dtype=np.float64)[:, :2], fine_m)
+        yaw0 = yaw_rad(guess)
+        if target.tree is None or len(source) < 10:
+            return LoopCheck(False, "fitness", None)
+
+        def align(x: float, y: float, yaw: float) -> tuple[float, float, float]:
+            x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 10 * coarse_m, 40)
+            x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 4 * fine_m, 40)
+            if self.cfg.icp_fine_kernel_m > 0:
+                x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 4 * fine_m, 40,
+                                         self.cfg.icp_fine_kernel_m)
+            return x, y, yaw
+
+        x, y, yaw = align(float(guess[0, 3]), float(guess[1, 3]), yaw0)
+        check_distance = 0.25
+        fitness, rmse, info = line_fit(source, target, x, y, yaw, check_distance)
+        result = Registration(yaw_pose(yaw, np.array([x, y, 0.0])), fitness, rmse)
+        if fitness < self.cfg.loop_min_fitness or rmse > self.cfg.loop_max_rmse_m:
+            return LoopCheck(False, "fitness", result)
+        for _ in range(3):
+            dyaw = float(self._rng.uniform(-0.17, 0.17))
+            dx, dy = self._rng.uniform(-0.5, 0.5, 2)
+            ox, oy, _ = align(x + float(dx), y + float(dy), yaw + dyaw)
+            if float(np.hypot(ox - x, oy - y)) > self.cfg.loop_ambiguity_m:
+                return LoopCheck(False, "ambiguous", result)
+        eig = np.linalg.eigvalsh(info[:2, :2])
         if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
             return LoopCheck(False, "degenerate", result)
         return LoopCheck(True, "ok", result)

@@ -6,12 +6,13 @@ prediction (z comes from the floor elevation, the robot is assumed level).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mfmap.mapping.geometry import inverse, transform, yaw_pose, yaw_rad
+from mfmap.mapping.geometry import inverse, transform, wrap_angle, yaw_pose, yaw_rad
 from mfmap.mapping.odometry import AdaptiveThreshold, ScanMatch
 from mfmap.types import F64
 
@@ -68,10 +69,12 @@ class Map2D:
 
 
 def icp_2d(source: F64, target: Map2D, x: float, y: float, yaw: float, max_distance_m: float,
-           iterations: int, kernel_m: float = 0.0) -> tuple[float, float, float, float, float]:
+           iterations: int, kernel_m: float = 0.0,
+           fix_yaw: bool = False) -> tuple[float, float, float, float, float]:
     """Gauss-Newton point-to-line ICP with Tukey weights; (x, y, yaw, fitness, rmse).
 
-    The kernel is `kernel_m`, or a third of the correspondence distance when 0.
+    The kernel is `kernel_m`, or a third of the correspondence distance when 0. With `fix_yaw`
+    only x and y are solved for.
     """
     assert target.tree is not None
     kernel = kernel_m or max_distance_m / 3.0
@@ -89,13 +92,17 @@ def icp_2d(source: F64, target: Map2D, x: float, y: float, yaw: float, max_dista
         # d(R p)/d yaw = (-s px - c py, c px - s py)
         drot = np.stack([-s * src[:, 0] - c * src[:, 1], c * src[:, 0] - s * src[:, 1]], axis=1)
         jac = np.stack([n[:, 0], n[:, 1], (drot * n).sum(axis=1)], axis=1)
+        if fix_yaw:
+            jac = jac[:, :2]
         w = np.where(np.abs(r) < kernel, (1 - (r / kernel) ** 2) ** 2, 0.0)
         h = (jac * w[:, None]).T @ jac
         g = (jac * w[:, None]).T @ r
         try:
-            step = -np.linalg.solve(h + 1e-9 * np.eye(3), g)
+            step = -np.linalg.solve(h + 1e-9 * np.eye(jac.shape[1]), g)
         except np.linalg.LinAlgError:
             break
+        if fix_yaw:
+            step = np.append(step, 0.0)
         x, y, yaw = x + step[0], y + step[1], yaw + step[2]
         fitness = float(ok.mean())
         rmse = float(np.sqrt(np.mean(r**2)))
@@ -109,8 +116,14 @@ class Scan2DMatcher:
 
     def __init__(self, voxel_m: float, map_voxel_m: float, max_keyframes: int,
                  threshold: AdaptiveThreshold, max_iterations: int, min_fitness: float = 0.3,
-                 fine_kernel_m: float = 0.0) -> None:
+                 fine_kernel_m: float = 0.0, max_gyro_disagreement_deg: float = 0.0,
+                 low_fitness: float = 0.0, max_overruled: int = 3) -> None:
         self.voxel_m = voxel_m
+        self.max_gyro_disagreement_rad = math.radians(max_gyro_disagreement_deg)
+        self.low_fitness = low_fitness
+        self.max_overruled = max_overruled
+        self.overruled = 0  # registrations whose heading the gyro overruled
+        self._overruled_in_a_row = 0
         self.fine_kernel_m = fine_kernel_m
         self.refined = 0
         self.map = Map2D(map_voxel_m, max_keyframes)
@@ -119,7 +132,17 @@ class Scan2DMatcher:
         self.min_fitness = min_fitness
         self.failures = 0
 
-    def match(self, points_base: F64, predicted: F64) -> ScanMatch:
+    def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False) -> ScanMatch:
+        """Register against the local 2D map from `predicted`.
+
+        With `gyro_prior` (the predicted heading is the IMU gyro's over a fraction of a second),
+        a registration that turns the heading more than `max_gyro_disagreement_deg` (half that
+        below `low_fitness`) from the gyro's keeps the gyro's heading, x and y solved again at
+        it, as `odometry.ScanMatcher` does in 3D: a scan of one wall and a doorway can rotate
+        about its few lines, and a turned scan turns the rest of the visit. After
+        `max_overruled` in a row the registration is taken again, so a biased gyro cannot hold
+        the odometry off the map.
+        """
         if self.map.tree is None or len(points_base) < 10:
             return ScanMatch(predicted, 0.0, 0.0, False)
         source = grid_downsample_2d(points_base[:, :2], self.voxel_m)
@@ -135,6 +158,17 @@ class Scan2DMatcher:
             x, y, yaw, _, _ = icp_2d(source, self.map, x, y, yaw, self.threshold.value_m,
                                      self.max_iterations, self.fine_kernel_m)
             self.refined += 1
+        limit = self.max_gyro_disagreement_rad * (0.5 if fitness < self.low_fitness else 1.0)
+        turned = wrap_angle(yaw - yaw_rad(predicted))
+        if (gyro_prior and limit > 0 and abs(turned) > limit
+                and self._overruled_in_a_row < self.max_overruled):
+            self.overruled += 1
+            self._overruled_in_a_row += 1
+            held = yaw_rad(predicted)
+            x, y, _, _, _ = icp_2d(source, self.map, x, y, held, self.threshold.value_m,
+                                   self.max_iterations, self.fine_kernel_m, fix_yaw=True)
+            return ScanMatch(yaw_pose(held, np.array([x, y, predicted[2, 3]])), fitness, rmse, False)
+        self._overruled_in_a_row = 0
         pose = yaw_pose(yaw, np.array([x, y, predicted[2, 3]]))
         self.threshold.update(inverse(predicted) @ pose)
         return ScanMatch(pose, fitness, rmse, True)

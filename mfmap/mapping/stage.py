@@ -320,7 +320,9 @@ class _Mapper:
             self.matcher = Scan2DMatcher(cfg.voxel_size_m, cfg.map_voxel_size_m,
                                          cfg.local_map_keyframes, self.threshold,
                                          cfg.icp_max_iterations,
-                                         fine_kernel_m=cfg.icp_fine_kernel_m)
+                                         fine_kernel_m=cfg.icp_fine_kernel_m,
+                                         max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
+                                         low_fitness=cfg.icp_gyro_low_fitness)
         else:
             self.matcher = ScanMatcher(cfg.voxel_size_m, self.local_map, self.threshold,
                                        cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
@@ -334,7 +336,7 @@ class _Mapper:
         margin_ns = 3_000_000_000
         self.stair_walks = [(tr.start_ns - margin_ns, tr.end_ns + margin_ns)
                             for tr in self.timeline.transitions if tr.kind == TransitionKind.STAIRS]
-        self.loops = LoopCloser(cfg)
+        self.loops = LoopCloser(cfg, planar=planar)
         self.state = _State()
         self.keyframes: list[Keyframe] = []
         self.edges: list[PoseEdge] = []
@@ -448,7 +450,8 @@ class _Mapper:
             match = self.matcher.match(points, predicted, gyro_prior=gyro_prior,
                                        gyro_var_rad2=gyro_var)
         else:
-            match = self.matcher.match(points, predicted)
+            match = self.matcher.match(
+                points, predicted, gyro_prior=self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
         pose = match.pose
         # Not on stairs: the climb is the registration's, and held, a landing's turn left a
         # 3.5 m climb 6.4 cm short, past the tests' 5 cm.
@@ -589,7 +592,7 @@ class _Mapper:
         if self._pending:
             self.scan_poses.sort(key=lambda sp: sp.stamp_ns)
             self._pending.clear()
-        self.edges.extend(_loop_edges(self.loops, kf, self.planar))
+        self.edges.extend(_loop_edges(self.loops, kf))
 
     def _walk_heading(self, before: Keyframe, after: Keyframe, measured: F64) -> F64:
         """The relative pose across a stair walk, its turn weighed between the registrations'
@@ -762,13 +765,8 @@ class _Mapper:
         return MappingResult(self.keyframes, self.edges, self.scan_poses, self.warnings, stats)
 
 
-def _loop_edges(loops: LoopCloser, kf: Keyframe, planar: bool) -> list[PoseEdge]:
-    edges = loops.add(kf)
-    if planar:  # verified in 3D on flat clouds: keep only what a 2D scan measures
-        edges = [PoseEdge(e.i, e.j, yaw_pose(yaw_rad(e.measured),
-                                             np.array([e.measured[0, 3], e.measured[1, 3], 0.0])),
-                          e.information, e.kind, e.fitness) for e in edges]
-    return edges
+def _loop_edges(loops: LoopCloser, kf: Keyframe) -> list[PoseEdge]:
+    return loops.add(kf)
 
 
 # The loop search's counters in the report: name -> LoopStats attribute.
@@ -1021,11 +1019,11 @@ def _merge(parts: list[_ChunkResult], cfg: MappingConfig, seg: FloorSegmentation
             counters[name] = merge(counters.get(name, 0.0), value)
         warnings += [w for w in part.warnings if w not in warnings]
     scan_poses.sort(key=lambda sp: sp.stamp_ns)
-    loops = LoopCloser(cfg, group_of=lambda kf: chunk_of_visit[kf.visit])
+    loops = LoopCloser(cfg, group_of=lambda kf: chunk_of_visit[kf.visit], planar=planar)
     edges: list[PoseEdge] = []
     for kf in keyframes:
         edges += chunk_edges.get(kf.id, [])
-        edges += _loop_edges(loops, kf, planar)
+        edges += _loop_edges(loops, kf)
     for name, value in _loop_counters(loops).items():
         counters[name] = counters.get(name, 0.0) + value
     if not keyframes:

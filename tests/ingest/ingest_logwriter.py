@@ -24,8 +24,8 @@ BARO_N, BARO_DT = 50, 40_000_000
 IMU_N, IMU_DT = 100, 10_000_000
 ODOM_N, ODOM_DT = 20, 50_000_000
 SCAN_N, SCAN_DT = 5, 200_000_000
-# The lidar's header stamp is 5 ms before the time the recorder logged it.
-LIDAR_LATENCY_NS = 5_000_000
+# The recorder logs each lidar scan 5 ms after its sweep ended; its header stamps the start.
+LIDAR_LATENCY_NS = LIDAR_DT + 5_000_000
 ROWS, COLS = 4, 8
 NAN_PER_SCAN = 3  # the first three points of every scan are no-returns
 TF_LIDAR_XYZ = (0.1, 0.0, 0.5)  # lidar in base_link, rotated 90 deg about z
@@ -56,6 +56,11 @@ def lidar_points(k: int) -> np.ndarray[Any, Any]:
     i = np.arange(ROWS * COLS, dtype=np.float32)
     pts = np.stack([i * 0.5 + k, -i * 0.25, np.full_like(i, 0.1 * k)], axis=1).astype(np.float32)
     return pts
+
+
+def point_time_ns(index: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+    """Ouster-like uint32 ns from the stamp: the columns of a 10 Hz sweep fire 12.5 ms apart."""
+    return ((index % COLS) * (LIDAR_DT // COLS)).astype(np.uint32)
 
 
 def pressure_pa(i: int) -> float:
@@ -100,7 +105,7 @@ def _cloud(store: Typestore, k: int, stamp_ns: int) -> Any:
     arr["x"], arr["y"], arr["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
     arr["intensity"] = np.arange(n, dtype=np.float32) + 100 * k
     arr["ring"] = np.arange(n) // COLS
-    arr["t"] = np.arange(n, dtype=np.uint32) * 1000
+    arr["t"] = point_time_ns(np.arange(n))
     fields = [
         PointField(name="t", offset=0, datatype=6, count=1),
         PointField(name="intensity", offset=4, datatype=7, count=1),

@@ -120,33 +120,6 @@ def test_zero_points_dropped_unless_asked() -> None:
     assert decode_pointcloud2(msg, STAMP_NS, drop_zero=False).xyz.shape == (6, 3)
 
 
-@pytest.mark.parametrize(
-    ("name", "fmt", "datatype", "values", "expected_ns"),
-    [
-        # Ouster: uint32 ns since the scan stamp.
-        ("t", "<u4", 6, [0, 50_000, 99_999_999], [0, 50_000, 99_999_999]),
-        # Velodyne: float32 seconds relative to the stamp.
-        ("time", "<f4", 7, [-0.05, 0.0, 0.025], [-50_000_000, 0, 25_000_000]),
-        # Hesai/Livox: float64 seconds since the epoch (the stamp is ...0.25 s).
-        ("timestamp", "<f8", 8, [1_700_000_000.25, 1_700_000_000.26, 1_700_000_000.35],
-         [0, 10_000_000, 100_000_000]),
-    ],
-)
-def test_per_point_time_fields(
-    name: str, fmt: str, datatype: int, values: list[float], expected_ns: list[int]
-) -> None:
-    dt = np.dtype({"names": ["x", "y", "z", name], "formats": ["<f4", "<f4", "<f4", fmt],
-                   "offsets": [0, 4, 8, 16], "itemsize": 24})
-    arr = np.zeros(3, dt)
-    arr["x"], arr["y"], arr["z"] = XYZ[:, 0], XYZ[:, 1], XYZ[:, 2]
-    arr[name] = values
-    msg = cloud_msg(arr, [field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field(name, 16, datatype)])
-    c = decode_pointcloud2(msg, STAMP_NS)
-    assert c.t_offset_ns is not None and c.t_offset_ns.dtype == np.int64
-    # float32 seconds carry ~0.1 us of rounding; float64 epoch seconds ~0.2 us.
-    np.testing.assert_allclose(c.t_offset_ns, expected_ns, atol=1000)
-
-
 def _xyz_msg() -> SimpleNamespace:
     dt = np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3, "offsets": [0, 4, 8], "itemsize": 16})
     arr = np.zeros(3, dt)
@@ -200,6 +173,42 @@ def test_laserscan_drops_invalid_ranges() -> None:
     s = decode_laserscan(msg, STAMP_NS)
     np.testing.assert_allclose(s.xy, [[0.0, -2.0], [0.0, -10.0]], atol=1e-5)
     assert s.t_offset_ns is None
+
+
+@pytest.mark.parametrize(
+    ("increment", "reversed_time", "want_ns"),
+    [
+        (1e-4, False, [0, 100_000, 200_000]),
+        # The stamp is the last beam's time.
+        (-1e-4, False, [0, -100_000, -200_000]),
+        # rplidar_ros: the array runs against the sweep.
+        (1e-4, True, [200_000, 100_000, 0]),
+        # A beam a second or more after the one before it is no per-beam time, either way.
+        (1.5, False, None),
+        (-2.0, True, None),
+        (float("nan"), False, None),
+    ],
+)
+def test_laserscan_beam_times(increment: float, reversed_time: bool, want_ns: list[int] | None) -> None:
+    msg = SimpleNamespace(
+        header=SimpleNamespace(frame_id="laser"), angle_min=0.0, angle_increment=0.1,
+        time_increment=increment, range_min=0.1, range_max=10.0,
+        ranges=np.array([1.0, 2.0, 3.0], np.float32))
+    s = decode_laserscan(msg, STAMP_NS, reversed_time)
+    if want_ns is None:
+        assert s.t_offset_ns is None
+    else:
+        assert s.t_offset_ns is not None
+        np.testing.assert_array_equal(s.t_offset_ns, want_ns)
+
+
+def test_laserscan_without_a_bearing_names_where() -> None:
+    msg = SimpleNamespace(
+        header=SimpleNamespace(frame_id="laser"), angle_min=0.0, angle_increment=float("inf"),
+        time_increment=1e-4, range_min=0.1, range_max=10.0, ranges=np.ones(3, np.float32))
+    with pytest.raises(DecodeError, match=r"^log\.mcap topic /scan: LaserScan with angle_min 0\.0 "
+                       r"and angle_increment inf: no bearing"):
+        decode_laserscan(msg, STAMP_NS, True, "log.mcap topic /scan")
 
 
 @pytest.mark.parametrize(

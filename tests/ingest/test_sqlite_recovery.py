@@ -92,11 +92,15 @@ def _check(bag: Path, readable: set[int], topic_of: dict[int, str]) -> None:
         assert {t.name: t.count for t in src.topics} == expected_counts
         assert sum(f"recovered {len(readable)} of {TOTAL} messages" in w for w in src.warnings) == 1
         clouds = list(src.clouds())
-        lidar_ids = sorted(i for i in readable if topic_of[i] == "/lidar/points")
+        # The lidar with the most recovered scans: /lidar2/points when none of /lidar/points is.
+        topic = src.roles[Role.LIDAR]
+        lidar_ids = sorted(i for i in readable if topic_of[i] == topic)
         assert len(clouds) == len(lidar_ids)
         # Each recovered scan is the one written: its stamp and its points.
-        all_stamps = [lw.T0_NS + k * lw.LIDAR_DT for k in range(lw.LIDAR_N)]
-        lidar_all = sorted(i for i, t in topic_of.items() if t == "/lidar/points")
+        step, n, shift = ((lw.LIDAR_DT, lw.LIDAR_N, 0) if topic == "/lidar/points"
+                          else (300_000_000, lw.LIDAR2_N, 1))
+        all_stamps = [lw.T0_NS + k * step + shift for k in range(n)]
+        lidar_all = sorted(i for i, t in topic_of.items() if t == topic)
         assert [c.stamp_ns for c in clouds] == [all_stamps[lidar_all.index(i)] for i in lidar_ids]
         for c in clouds:
             k = all_stamps.index(c.stamp_ns)
