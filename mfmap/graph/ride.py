@@ -16,10 +16,12 @@ sigma_a sqrt(dt) T^1.5 / sqrt(12) (T the window length), about 1-2 cm for a 7 s 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from mfmap.types import F64, ImuSeries
@@ -51,12 +53,52 @@ class RideHeight:
     sigma_m: float
     reason: str  # "ok" or why the IMU estimate was skipped
     bias_m_s2: float = 0.0  # specific force along up at rest, minus 9.80665 (gravity + bias)
+    legs: int = 0  # cabin moves integrated on their own (a ride with stops counts each leg)
+    end_speed_m_s: float = 0.0  # largest velocity left at a leg's end before the zero-velocity update
 
 
 def _moving_mean(x: F64, n: int) -> F64:
     """Centred mean over n samples (edges padded with the nearest sample), as floors/motion.py."""
     # origin -1: for an even n the window reaches one sample further ahead than behind.
     return np.asarray(ndimage.uniform_filter1d(x, size=max(n, 1), mode="nearest", origin=-1 if n % 2 == 0 else 0))
+
+
+# The integration window's ends: where the smoothed vertical acceleration falls back into its
+# noise (this many sigmas of the smoothed stand-still noise, at least QUIET_MIN_M_S2), plus
+# TIGHT_PAD_S. The bridge's noise grows with the window's length to the power 1.5: a pad of
+# 0.5 s either side of a 6 s ride adds a quarter to it.
+QUIET_SIGMAS = 4.0
+QUIET_MIN_M_S2 = 0.015
+TIGHT_PAD_S = 0.1
+# A cabin that stops inside the window (a stop at a floor where the robot stays in): slower
+# than this for at least STOP_S is a stop, and each move either side is integrated on its own,
+# with zero velocity at both of its ends. The accelerometer alone cannot tell a stop from a
+# cruise; the velocity can (a cabin cruises at 0.5-2.5 m/s).
+STOP_SPEED_M_S = 0.05
+STOP_S = 1.0
+# Left over at a move's end, before the zero-velocity update removes it as a bias: white noise
+# leaves millimetres per second; more than this is a bias that changed, lost samples or a
+# stand-still that was not one, and the double integral cannot be trusted.
+MAX_END_SPEED_M_S = 0.1
+
+
+def _bridge(a_up: F64, tr: F64) -> tuple[float, F64, float]:
+    """Height change over one move (trapezoids), zero velocity at both ends: the linear trend
+    that makes v(end) != 0 is removed. Returns the height, the corrected velocity and the
+    velocity the trend removed at the end."""
+    dur = max(float(tr[-1] - tr[0]), 1e-9)
+    v = np.concatenate([[0.0], np.cumsum(0.5 * (a_up[1:] + a_up[:-1]) * np.diff(tr))])
+    end_speed = float(v[-1])
+    v -= end_speed * (tr - tr[0]) / dur
+    return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(tr))), v, end_speed
+
+
+def _quiet_ends(active: npt.NDArray[np.bool_], lo: int, hi: int, pad: int) -> tuple[int, int] | None:
+    """First and last active sample in [lo, hi), widened by `pad` samples (within [lo, hi))."""
+    idx = np.flatnonzero(active[lo:hi])
+    if idx.shape[0] == 0:
+        return None
+    return max(lo, lo + int(idx[0]) - pad), min(hi - 1, lo + int(idx[-1]) + pad)
 
 
 def ride_height(
@@ -70,6 +112,7 @@ def ride_height(
     The cabin's motion is looked for within `search_s` of the barometer's span (its transition
     times are within about a second of the truth). Skipped, with the reason, when there is no
     IMU, no clear ride in the accelerometer, or the robot is not standing still before and after.
+    A ride that stops on the way (the robot staying in the cabin) is integrated move by move.
     """
     if imu is None or len(imu) < 10:
         return RideHeight(start_ns, end_ns, None, 0.0, "no IMU")
@@ -92,7 +135,8 @@ def ride_height(
     up0 = np.median(acc[inside], axis=0)
     up0 /= max(float(np.linalg.norm(up0)), 1e-9)
     norm = np.linalg.norm(acc, axis=1)
-    smooth = _moving_mean(acc @ up0, max(1, round(SMOOTH_S / dt_s)))
+    n_smooth = max(1, round(SMOOTH_S / dt_s))
+    smooth = _moving_mean(acc @ up0, n_smooth)
     rest = float(np.median(smooth[inside]))
     moving = inside & (np.abs(smooth - rest) > MOTION_THRESHOLD_M_S2)
     if not moving.any():
@@ -125,17 +169,60 @@ def ride_height(
     noise = float(f_up[still].std())
 
     ride = (ts >= t0) & (ts <= t1)
-    tr = (ts[ride] - ts[ride][0]) / 1e9
-    dur_s = float(tr[-1])
-    if float(np.diff(tr).max(initial=0.0)) > 0.1:
+    if float(np.diff(ts[ride]).max(initial=0)) / 1e9 > 0.1:
         return RideHeight(t0, t1, None, 0.0, "IMU samples missing during the ride")
-    a_up = f_up[ride] - g_still
-    # Trapezoidal integration; zero-velocity update: v(0) = v(T) = 0.
-    v = np.concatenate([[0.0], np.cumsum(0.5 * (a_up[1:] + a_up[:-1]) * np.diff(tr))])
-    v -= v[-1] * tr / max(dur_s, 1e-9)
-    z = float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(tr)))
-    sigma = math.hypot(noise * math.sqrt(dt_s) * dur_s**1.5 / math.sqrt(12.0), SIGMA_FLOOR_M)
-    return RideHeight(t0, t1, z, sigma, "ok", bias_m_s2=g_still - 9.80665)
+    a_all = f_up - g_still
+    # The window hugs the motion: from the first to the last sample whose smoothed acceleration
+    # stands out of the stand-still noise, searched within the padded window.
+    quiet = max(QUIET_SIGMAS * noise / math.sqrt(n_smooth), QUIET_MIN_M_S2)
+    active = np.abs(_moving_mean(a_all, n_smooth)) > quiet
+    i_lo, i_hi = int(np.flatnonzero(ride)[0]), int(np.flatnonzero(ride)[-1]) + 1
+    pad = round(TIGHT_PAD_S / dt_s)
+    ends = _quiet_ends(active, i_lo, i_hi, pad)
+    if ends is None:
+        return RideHeight(t0, t1, None, 0.0, "no vertical acceleration found")
+    a, b = ends
+    tr = (ts[a : b + 1] - ts[a]) / 1e9
+    _, v, _ = _bridge(a_all[a : b + 1], tr)
+
+    # Stops inside: runs of low speed of at least STOP_S, away from the window's ends; each
+    # move between them is integrated with its own zero-velocity ends.
+    slow = np.abs(v) < STOP_SPEED_M_S
+    cuts = [a]
+    for r0, r1 in _runs(slow):
+        if r0 > 0 and r1 < slow.shape[0] and (r1 - r0) * dt_s >= STOP_S:
+            cuts.append(a + (r0 + r1) // 2)
+    cuts.append(b)
+    height, var, worst = 0.0, 0.0, 0.0
+    legs = 0
+    for c0, c1 in itertools.pairwise(cuts):
+        leg = _quiet_ends(active, c0, c1 + 1, pad) if len(cuts) > 2 else (c0, c1)
+        if leg is None:
+            continue  # a stop's half with no motion in it
+        la, lb = leg
+        if lb - la < 2:
+            continue
+        tl = (ts[la : lb + 1] - ts[la]) / 1e9
+        dz, _, end_speed = _bridge(a_all[la : lb + 1], tl)
+        height += dz
+        var += (noise * math.sqrt(dt_s)) ** 2 * float(tl[-1]) ** 3 / 12.0
+        worst = max(worst, abs(end_speed))
+        legs += 1
+    start, stop = int(ts[a]), int(ts[b])
+    if worst > MAX_END_SPEED_M_S:
+        return RideHeight(start, stop, None, 0.0,
+                          f"the cabin is not at rest at the end of the integration ({worst:.2f} m/s "
+                          "left): the accelerometer's bias changed or samples are missing",
+                          bias_m_s2=g_still - 9.80665, legs=legs, end_speed_m_s=worst)
+    sigma = math.hypot(math.sqrt(var), SIGMA_FLOOR_M)
+    return RideHeight(start, stop, height, sigma, "ok", bias_m_s2=g_still - 9.80665, legs=legs,
+                      end_speed_m_s=worst)
+
+
+def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
+    padded = np.concatenate(([0], mask.astype(np.int8), [0]))
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 # Accelerating, cruising and braking of one ride: bursts of vertical acceleration closer than
