@@ -82,6 +82,38 @@ def _table(rows: list[list[Any]], header: list[str]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _heights_section(graph: dict[str, Any]) -> list[str]:
+    """Per ride and walk: each sensor's height change, which the graph used and why."""
+    rides = [r for r in graph.get("rides", []) if "heights" in r]
+    if not rides:
+        return []
+
+    def cm(r: dict[str, Any], key: str) -> str:
+        return f"{r[key]:+.3f}" if key in r else "-"
+
+    rows = []
+    for r in rides:
+        true_key = "imu_height_change_m" if r["kind"] == "elevator" else "lidar_height_change_m"
+        rows.append([r["kind"], r["from_floor"], r["to_floor"], cm(r, true_key), cm(r, "baro_height_change_m"),
+                     cm(r, "graph_height_change_m"), ", ".join(r.get("heights_used", [])) or "none",
+                     r["heights"]])
+    model = graph.get("heights", {})
+    text = ""
+    if model:
+        scale = model.get("graph_scale", model.get("scale"))
+        used = "used" if model.get("barometer_heights_used", True) else "not used (it disagrees with every scale-true height)"
+        text = (f"<p>Barometer's height scale {scale} (prior {model.get('scale_prior')}; from {model.get('pairs', 0)} "
+                f"transitions measured both ways), floors' pressure offsets spread {model.get('offset_sigma_m')} m; "
+                f"its heights {html.escape(used)}.</p>")
+    return [
+        "<h2>Heights</h2>",
+        "<p>Scale-true heights (an elevator ride's from the IMU, a stair walk's from the lidar) place "
+        "the floors; the barometer's are scaled and weighed in.</p>",
+        text,
+        _table(rows, ["transition", "from", "to", "IMU / lidar [m]", "barometer [m]", "graph [m]", "used", "why"]),
+    ]
+
+
 def html_report(
     title: str,
     report: dict[str, Any],
@@ -129,6 +161,7 @@ def html_report(
             ["factor", "count", "error before", "error after", "outliers", "rejected"],
         )
     )
+    parts += _heights_section(graph)
     if graph.get("inter_floor"):
         parts.append(
             _table(

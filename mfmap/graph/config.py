@@ -56,7 +56,8 @@ class GraphConfig(BaseModel):
     elevator_sigma_xy_m: float = Field(0.3, gt=0.0, description="x, y held through an elevator ride")
     elevator_sigma_yaw_deg: float = Field(3.0, gt=0.0, description="yaw held through an elevator ride")
     transition_height: bool = Field(
-        True, description="the floors stage's height change across each transition as a z factor"
+        True, description="the barometer's height change across each transition (scaled, with the "
+        "floors' pressure offsets) as a z factor"
     )
     transition_sigma_z_m: float = Field(
         0.03, gt=0.0, description="noise of the floors stage's height change, used where the fit below cannot run (m)"
@@ -73,8 +74,33 @@ class GraphConfig(BaseModel):
         description="each elevator ride's height change from the IMU (vertical specific force "
         "integrated twice, zero velocity at both ends) as its own z factor",
     )
-    imu_ride_gate_m: float = Field(
-        0.25, gt=0.0, description="drop the IMU's ride height when it differs from the barometer's by more (m)"
+    walk_height: bool = Field(
+        True, description="each stair walk's height change from the lidar odometry as its own z factor"
+    )
+    baro_scale_sigma: float = Field(
+        0.04,
+        gt=0,
+        description="uncertainty of the barometer's height scale at floors.temperature_k when the log "
+        "has no Temperature topic (0.34 % per kelvin: 0.04 spans 0-40 deg C around 22 deg C); the "
+        "scale-true heights (IMU rides, lidar walks) calibrate it",
+    )
+    temperature_sigma_k: float = Field(
+        2.0,
+        gt=0,
+        description="uncertainty of a Temperature topic's mean as the temperature of the air between "
+        "the floors (K); sets the scale's prior with it",
+    )
+    baro_offset_sigma_m: float = Field(
+        0.2,
+        ge=0,
+        description="spread of the floors' pressure offsets (ventilation, stack effect), as a height "
+        "(m), before the data; refined from the transitions measured both ways",
+    )
+    height_gate_sigma: float = Field(
+        4.0,
+        gt=0,
+        description="a height measurement further than this many sigmas from what the others say is "
+        "left out (mfmap.graph.heights)",
     )
     gravity_sigma_deg: float = Field(
         0.5, gt=0.0, description="roll/pitch from gravity (robust, Huber); each keyframe's up, measured "

@@ -1,15 +1,21 @@
 """The building's factor graph: one gtsam.NonlinearFactorGraph for all floors, optimised by LM.
 
 Variables: Pose3 x<keyframe id> per keyframe, a barometer height bias b<k> per keyframe (in time
-order) drifting as a random walk. Factors, by kind:
+order) drifting as a random walk within a floor visit, a floor level f<id> per floor (ground
+robots), and the barometer's height scale s0 and per-floor pressure offsets u<id> (as heights)
+where barometric heights are used. Factors, by kind:
 - prior: the first keyframe fixes the world frame;
 - odometry / loop: the mapping stage's edges, robust (Huber or Cauchy);
 - barometer: gtsam.BarometricFactor per keyframe (z = height(pressure) - bias);
-- bias_walk: BetweenFactorDouble between consecutive biases (sigma grows with sqrt(dt));
+- bias_walk: BetweenFactorDouble between consecutive biases (sigma grows with sqrt(dt); free
+  across a transition);
 - elevator: x, y, yaw held across a ride, z free;
-- transition_z: the barometer's height change across a ride or a stairway (a fit on the raw trace
-  either side, mfmap.floors.levels.level_change);
 - imu_ride: an elevator ride's height change from the IMU (mfmap.graph.ride), z only;
+- walk_z: a stair walk's height change from the lidar odometry, z only;
+- transition_z: the barometer's height change across a ride or a stairway (a fit on the raw trace
+  either side, mfmap.floors.levels.level_change), through the scale and the two floors' offsets;
+- baro_scale, baro_offset: their priors (mfmap.graph.heights decides which heights are used and
+  calibrates the priors);
 - interfloor: global registration of adjacent floors, x, y, yaw only;
 - height_tie: every keyframe of a floor at that floor's level f<id> (world z; ground robots);
 - gravity: roll/pitch from the IMU's gravity (or level when there is no IMU);
@@ -33,8 +39,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from mfmap.floors.levels import RawTrace, level_change, raw_trace
+from mfmap.graph import heights
 from mfmap.graph.barometer import pressure_at, pressure_to_height_m
 from mfmap.graph.config import BaroSource, GraphConfig, RobustKernel
+from mfmap.graph.heights import Calibration, Measurement, TransitionHeights
 from mfmap.graph.interfloor import FloorMatch, register_floors
 from mfmap.graph.ride import ride_height
 from mfmap.progress import NullProgress, Progress
@@ -66,6 +74,15 @@ def X(i: int) -> int:
 
 def B(k: int) -> int:
     return int(gtsam.symbol("b", k))
+
+
+# The barometer's height scale (true metres per barometric metre at the assumed temperature).
+SCALE = int(gtsam.symbol("s", 0))
+
+
+def U(floor: int) -> int:
+    """A floor's pressure offset, as a height in true metres (scale times offset)."""
+    return int(gtsam.symbol("u", floor))
 
 
 def Fl(floor: int) -> int:
@@ -125,7 +142,8 @@ class GraphResult:
     error_final: float
     seconds: float
     warnings: list[str] = field(default_factory=list)
-    rides: list[dict[str, Any]] = field(default_factory=list)  # per transition: IMU vs barometer
+    rides: list[dict[str, Any]] = field(default_factory=list)  # per transition: its heights
+    heights: dict[str, Any] = field(default_factory=dict)  # the barometer's calibration
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -151,6 +169,7 @@ class GraphResult:
             ],
             "floor_z_m": {str(k): round(v, 4) for k, v in self.floor_z_m.items()},
             "rides": [dict(r) for r in self.rides],
+            "heights": dict(self.heights),
             "warnings": list(self.warnings),
         }
 
@@ -330,6 +349,7 @@ def optimize_building(
     progress: Progress | None = None,
     imu: ImuSeries | None = None,
     executor: Executor | None = None,
+    scale_prior_sigma: float | None = None,
 ) -> GraphResult:
     """Build the building's factor graph from the mapping stage's keyframes and edges; optimise.
 
@@ -337,7 +357,10 @@ def optimize_building(
     frame; keyframes without one are assumed level. `imu` gives each elevator ride's height change
     (config `imu_ride_height`); without it z across a ride comes from the barometer alone.
     With `executor` (processes of `mapping.workers.worker_pool`) the pairs of adjacent floors are
-    registered in parallel, with the same results.
+    registered in parallel, with the same results. `scale_prior_sigma`: the uncertainty of the
+    barometer's height scale before the data (a Temperature topic's; default: config
+    `baro_scale_sigma`, the assumed temperature's).
+    Heights: see mfmap.graph.heights.
     Returns optimised poses; keyframes are not modified.
     """
     started = time.perf_counter()
@@ -365,6 +388,7 @@ def optimize_building(
         )
 
         known = set(ids)
+        walks: dict[tuple[int, int], _Walk] = {}
         for edge in edges:
             if edge.i not in known or edge.j not in known:
                 warnings.append(f"graph: edge {edge.i}->{edge.j} refers to an unknown keyframe")
@@ -394,14 +418,15 @@ def optimize_building(
             builder.add(edge.kind, factor, sqrt_info)
             builder.links.append((edge.i, edge.j))
             if walk:
-                dz_m = float((initial_poses[edge.i][:3, :3] @ np.asarray(edge.measured)[:3, 3])[2])
-                builder.world_dz("walk_z", X(edge.i), X(edge.j), dz_m, sigma_z, robust=True)
+                # The lidar's climb, a scale-true height: weighed with the barometer's per
+                # transition (mfmap.graph.heights) before it becomes a factor.
+                walks[(edge.i, edge.j)] = _Walk.of(edge, initial_poses, sigma_z)
 
         _add_barometer(
             builder, values, kfs, initial_poses, pressure, segmentation, config, temperature_k, warnings
         )
-        rides = _add_elevator(builder, kfs, initial_poses, segmentation, config, imu)
-        warnings.extend(_ride_disagreements(rides))
+        rides, calibration = _add_transitions(builder, values, kfs, initial_poses, segmentation, config,
+                                              imu, walks, scale_prior_sigma, warnings)
         if config.same_floor_height_tie:
             _add_height_ties(builder, values, kfs, initial_poses)
         if config.gravity_factors:
@@ -463,6 +488,13 @@ def optimize_building(
             a, b = ride["keyframes"]
             lo, hi = _height_keys(by_id[a], by_id[b], config)
             ride["graph_height_change_m"] = round(_z(result, hi) - _z(result, lo), 4)
+    height_model = calibration.to_json()
+    if result.exists(SCALE):
+        height_model["graph_scale"] = round(float(result.atDouble(SCALE)), 5)
+        height_model["graph_offsets_m"] = {
+            str(f): round(float(result.atDouble(U(f))), 4)
+            for f in sorted({k.floor_id for k in kfs if k.floor_id >= 0}) if result.exists(U(f))
+        }
     bias = {k: float(result.atDouble(B(k))) for k in range(len(kfs)) if result.exists(B(k))}
     return GraphResult(
         poses=poses,
@@ -477,6 +509,7 @@ def optimize_building(
         seconds=time.perf_counter() - started,
         warnings=warnings,
         rides=rides,
+        heights=height_model,
     )
 
 
@@ -520,6 +553,11 @@ def _add_barometer(
     for k in range(len(kfs) - 1):
         dt_s = max((kfs[k + 1].stamp_ns - kfs[k].stamp_ns) / 1e9, 1e-3)
         sig = config.bias_random_walk_m_sqrt_s * math.sqrt(dt_s)
+        if kfs[k + 1].visit != kfs[k].visit:
+            # Across a transition the bias is free: the keyframes' barometric heights would
+            # otherwise measure the transition's height a second time, uncalibrated (its scale
+            # and the floors' offsets are the transition factors' business).
+            sig = FREE_SIGMA
         builder.add(
             "bias_walk",
             gtsam.BetweenFactorDouble(B(k), B(k + 1), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sig)),
@@ -535,25 +573,35 @@ def _ride_ends(kfs: list[Keyframe], start_ns: int, end_ns: int) -> tuple[Keyfram
     return before[-1], after[0]
 
 
-def _add_elevator(
+def _add_transitions(
     builder: _Builder,
+    values: Any,
     kfs: list[Keyframe],
     initial: dict[int, F64],
     seg: FloorSegmentation | None,
     config: GraphConfig,
-    imu: ImuSeries | None = None,
-) -> list[dict[str, Any]]:
-    """Per transition: the floors stage's height change (z only), for elevator rides the IMU's
-    height change (z only) and x, y and yaw held (z free). Separate factors, so an x, y, yaw
-    disagreement that the robust kernel turns down does not also turn down the height.
-    Returns one report entry per transition (IMU vs barometer height change)."""
+    imu: ImuSeries | None,
+    walks: dict[tuple[int, int], _Walk],
+    scale_prior_sigma: float | None,
+    warnings: list[str],
+) -> tuple[list[dict[str, Any]], Calibration]:
+    """Per transition: its height change from the scale-true sensor (an elevator ride's from the
+    IMU, a stair walk's from the lidar) and from the barometer, weighed by mfmap.graph.heights and
+    added as z-only factors; for elevator rides x, y and yaw held (z free). Separate factors, so
+    an x, y, yaw disagreement that the robust kernel turns down does not also turn down the height.
+    Returns one report entry per transition and the barometer's calibration."""
     rides: list[dict[str, Any]] = []
+    prior = (1.0, config.baro_scale_sigma if scale_prior_sigma is None else scale_prior_sigma)
     if seg is None:
-        return rides
+        seg = FloorSegmentation((), (), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0),
+                                np.zeros(0, dtype=np.int32))
     yaw = math.radians(config.elevator_sigma_yaw_deg)
     sig_xy = config.elevator_sigma_xy_m
     tilt = _LOOSE_TILT_RAD
     trace = raw_trace(seg) if config.transition_window_s > 0 and len(seg.stamp_ns) > 0 else None
+    items: list[TransitionHeights] = []
+    keys: dict[int, tuple[int, int]] = {}
+    walk_of: dict[int, _Walk] = {}
     for index, tr in enumerate(seg.transitions):
         ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
         entry: dict[str, Any] = {
@@ -566,18 +614,30 @@ def _add_elevator(
         }
         rides.append(entry)
         if ends is None:
-            entry["imu"] = "no keyframe before or after the transition"
+            entry["heights"] = "no keyframe before or after the transition"
             continue
         a, b = ends
         entry["keyframes"] = [a.id, b.id]
-        baro_dz, baro_sigma = _transition_height(seg, index, config, entry, trace)
-        keys = _height_keys(a, b, config)
-        if tr.kind == TransitionKind.ELEVATOR and config.imu_ride_height:
-            _add_imu_ride(builder, keys, tr.start_ns, tr.end_ns, baro_dz, imu, config, entry)
-        else:
-            entry["imu"] = "off" if tr.kind == TransitionKind.ELEVATOR else "not an elevator ride"
+        keys[index] = _height_keys(a, b, config)
+        item = TransitionHeights(index, tr.kind, tr.from_floor, tr.to_floor, None, None)
         if config.transition_height:
-            builder.world_dz("transition_z", *keys, baro_dz, baro_sigma)
+            baro_dz, baro_sigma = _transition_height(seg, index, config, entry, trace)
+            item.baro = Measurement("barometer", baro_dz, baro_sigma)
+        else:
+            item.baro_reason = "off"
+        if tr.kind == TransitionKind.ELEVATOR:
+            item.scale_true, item.scale_true_reason = _imu_height(tr.start_ns, tr.end_ns, imu, config, entry)
+        elif not config.walk_height:
+            item.scale_true_reason = "off"
+        elif (a.id, b.id) in walks:
+            w = walks[(a.id, b.id)]
+            item.scale_true = Measurement("lidar", w.height_change_m, w.sigma_m)
+            entry["lidar_height_change_m"] = round(w.height_change_m, 4)
+            entry["lidar_sigma_m"] = round(w.sigma_m, 4)
+            walk_of[index] = w
+        else:
+            item.scale_true_reason = "the lidar odometry does not run across it"
+        items.append(item)
         if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
@@ -589,7 +649,131 @@ def _add_elevator(
                 "elevator", a.id, b.id, measured, [tilt, tilt, yaw, sig_xy, sig_xy, FREE_SIGMA],
                 kernel=RobustKernel.CAUCHY,
             )
-    return rides
+
+    start_floor = next((k.floor_id for k in kfs if k.floor_id >= 0), 0)
+    calibration = heights.calibrate(items, prior, config.baro_offset_sigma_m)
+    heights.decide(items, calibration, start_floor, config.height_gate_sigma)
+    if calibration.usable and calibration.pairs > 0:
+        # Again on the measurements kept, and decided again on that calibration.
+        calibration = heights.calibrate(items, prior, config.baro_offset_sigma_m, used_only=True)
+        heights.decide(items, calibration, start_floor, config.height_gate_sigma)
+    warnings.extend(calibration.warnings)
+    _add_heights(builder, values, items, keys, walk_of, calibration)
+    if config.walk_height:
+        # A walk the floors stage has no transition for (no barometer): the lidar's climb alone.
+        matched = {(w.i, w.j) for w in walk_of.values()}
+        for pair, walk in walks.items():
+            if pair not in matched:
+                builder.world_dz("walk_z", X(walk.i), X(walk.j), walk.height_change_m, walk.sigma_m, robust=True)
+    for item in items:
+        entry = rides[item.index]
+        entry["heights_used"] = [m.source for m, used in ((item.scale_true, item.use_scale_true),
+                                                          (item.baro, item.use_baro)) if m is not None and used]
+        entry["heights"] = item.why
+        if not entry["heights_used"]:
+            warnings.append(f"graph: {item.label}: no height measurement used ({item.why}); its floors' "
+                            "heights come from the others")
+        elif item.scale_true is not None and not item.use_scale_true:
+            warnings.append(f"graph: {item.label}: the {item.scale_true.source}'s height left out ({item.why})")
+        elif item.baro is not None and item.use_scale_true and calibration.usable and not item.use_baro:
+            warnings.append(f"graph: {item.label}: the barometer's height left out ({item.why})")
+    return rides, calibration
+
+
+def _add_heights(
+    builder: _Builder,
+    values: Any,
+    items: list[TransitionHeights],
+    keys: dict[int, tuple[int, int]],
+    walk_of: dict[int, _Walk],
+    cal: Calibration,
+) -> None:
+    """The accepted heights as factors: a scale-true one as a world-z change (robust), a
+    barometric one through the scale and the two floors' offsets (variables with the
+    calibration's priors):  z_b - z_a = s d - (u_b - u_a)."""
+    used_baro = [it for it in items if it.use_baro and it.baro is not None]
+    if used_baro:
+        values.insert(SCALE, cal.scale)
+        builder.add("baro_scale", gtsam.PriorFactorDouble(SCALE, cal.scale_prior[0],
+                                                           gtsam.noiseModel.Isotropic.Sigma(1, cal.scale_prior[1])),
+                    np.eye(1) / cal.scale_prior[1])
+        sigma_o = max(cal.offset_sigma_m, 1e-3)
+        for f in sorted({f for it in used_baro for f in (it.from_floor, it.to_floor)}):
+            values.insert(U(f), 0.0)
+            builder.add("baro_offset", gtsam.PriorFactorDouble(U(f), 0.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma_o)),
+                        np.eye(1) / sigma_o)
+    for it in items:
+        key_a, key_b = keys[it.index]
+        if it.use_scale_true and it.scale_true is not None:
+            kind = "walk_z" if it.index in walk_of else "imu_ride"
+            builder.world_dz(kind, key_a, key_b, it.scale_true.height_change_m, it.scale_true.sigma_m,
+                             robust=True)
+        elif it.scale_true is not None:
+            builder.reject("imu_ride" if it.scale_true.source == "imu" else "walk_z")
+        if it.use_baro and it.baro is not None:
+            sigma = max(cal.scale * it.baro.sigma_m, 1e-4)
+            builder.add("transition_z", _baro_height_factor(key_a, key_b, U(it.from_floor), U(it.to_floor),
+                                                            it.baro.height_change_m, sigma, builder.config),
+                        np.eye(1) / sigma)
+        elif it.baro is not None:
+            builder.reject("transition_z")
+
+
+@dataclass(frozen=True)
+class _Walk:
+    """A stair walk's height change as the lidar odometry measured it: its relative translation
+    turned into the world by the mapping stage's pose of the keyframe before it (the frame the
+    odometry measured it in; gravity levelling that keyframe must not move the climb)."""
+
+    i: int
+    j: int
+    sigma_m: float
+    height_change_m: float
+
+    @classmethod
+    def of(cls, edge: PoseEdge, initial: dict[int, F64], sigma_m: float) -> _Walk:
+        dz = float((initial[edge.i][:3, :3] @ np.asarray(edge.measured)[:3, 3])[2])
+        return cls(edge.i, edge.j, sigma_m, dz)
+
+
+def _z_with_jacobian(values: Any, key: int) -> tuple[float, np.ndarray]:
+    """World z of a floor level Fl(id) or a keyframe X(id), and its Jacobian."""
+    if _is_level(key):
+        return -float(values.atDouble(key)), np.array([[-1.0]])
+    pose = values.atPose3(key)
+    return float(pose.z()), np.concatenate([np.zeros(3), pose.rotation().matrix()[2]]).reshape(1, 6)
+
+
+def _baro_height_factor(key_a: int, key_b: int, key_ua: int, key_ub: int, d_m: float, sigma_m: float,
+                        config: GraphConfig) -> Any:
+    """error = (z_b - z_a) - s d + (u_b - u_a), z from two floor levels or two keyframes."""
+    model = _robust(config, gtsam.noiseModel.Isotropic.Sigma(1, sigma_m))
+    z_and_jacobian = _z_with_jacobian
+
+    def error(this: Any, values: Any, jacobians: list[np.ndarray] | None) -> np.ndarray:
+        za, ja = z_and_jacobian(values, key_a)
+        zb, jb = z_and_jacobian(values, key_b)
+        s = float(values.atDouble(SCALE))
+        ua, ub = float(values.atDouble(key_ua)), float(values.atDouble(key_ub))
+        if jacobians is not None:
+            jacobians[0] = -ja
+            jacobians[1] = jb
+            jacobians[2] = np.array([[-d_m]])
+            jacobians[3] = np.array([[-1.0]])
+            jacobians[4] = np.array([[1.0]])
+        return np.array([zb - za - s * d_m + (ub - ua)])
+
+    if key_ua == key_ub:  # a transition back to the same floor: its offsets cancel
+        def same(this: Any, values: Any, jacobians: list[np.ndarray] | None) -> np.ndarray:
+            za, ja = z_and_jacobian(values, key_a)
+            zb, jb = z_and_jacobian(values, key_b)
+            s = float(values.atDouble(SCALE))
+            if jacobians is not None:
+                jacobians[0], jacobians[1], jacobians[2] = -ja, jb, np.array([[-d_m]])
+            return np.array([zb - za - s * d_m])
+
+        return gtsam.CustomFactor(model, [key_a, key_b, SCALE], same)
+    return gtsam.CustomFactor(model, [key_a, key_b, SCALE, key_ua, key_ub], error)
 
 
 def _height_keys(a: Keyframe, b: Keyframe, config: GraphConfig) -> tuple[int, int]:
@@ -625,53 +809,27 @@ def _transition_height(
     return tr.height_change_m, config.transition_sigma_z_m
 
 
-def _ride_disagreements(rides: list[dict[str, Any]], n_sigma: float = 4.0) -> list[str]:
-    """A warning per ride whose IMU and barometer height changes differ by more than n_sigma:
-    one of them is wrong (a pressure step at the ride, a bias change in the IMU), and the graph
-    can only weigh them."""
-    out = []
-    for r in rides:
-        if r.get("imu") != "ok" or "imu_height_change_m" not in r:
-            continue
-        diff = r["imu_height_change_m"] - r["baro_height_change_m"]
-        sigma = math.hypot(r["imu_sigma_m"], r["baro_sigma_m"])
-        if abs(diff) > n_sigma * sigma:
-            out.append(
-                f"graph: ride {r['from_floor']}->{r['to_floor']}: the IMU's height change differs from "
-                f"the barometer's by {100 * diff:+.1f} cm ({abs(diff) / sigma:.0f} sigma)"
-            )
-    return out
-
-
-def _add_imu_ride(
-    builder: _Builder,
-    keys: tuple[int, int],
+def _imu_height(
     start_ns: int,
     end_ns: int,
-    baro_dz_m: float,
     imu: ImuSeries | None,
     config: GraphConfig,
     entry: dict[str, Any],
-) -> None:
-    """The IMU's height change across one ride as a z-only factor between `keys` (the floors'
-    levels, or the ride's keyframes: `_height_keys`).
-
-    Gated against the barometer's height change (a wrong IMU bias or a missed stand-still gives
-    decimetres, not centimetres) and robust, so a bad IMU does not win.
-    """
+) -> tuple[Measurement | None, str]:
+    """The IMU's height change across one ride (mfmap.graph.ride), or why there is none."""
+    if not config.imu_ride_height:
+        entry["imu"] = "off"
+        return None, "off"
     ride = ride_height(imu, start_ns, end_ns)
     entry["imu"] = ride.reason
     if ride.height_change_m is None:
-        return
+        return None, ride.reason
     entry["imu_height_change_m"] = round(ride.height_change_m, 4)
     entry["imu_sigma_m"] = round(ride.sigma_m, 4)
     entry["imu_window_s"] = round((ride.end_ns - ride.start_ns) / 1e9, 3)
     entry["imu_bias_m_s2"] = round(ride.bias_m_s2, 4)
-    if abs(ride.height_change_m - baro_dz_m) > config.imu_ride_gate_m:
-        entry["imu"] = f"rejected: differs from the barometer by more than {config.imu_ride_gate_m} m"
-        builder.reject("imu_ride")
-        return
-    builder.world_dz("imu_ride", *keys, ride.height_change_m, ride.sigma_m, robust=True)
+    entry["imu_legs"] = ride.legs
+    return Measurement("imu", ride.height_change_m, ride.sigma_m), "ok"
 
 
 def _add_height_ties(
