@@ -149,7 +149,10 @@ def build(
             log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
 
             t0 = time.perf_counter()
-            pressure, seg = segment_floors(src, cfg, warnings)
+            from mfmap.floors.pipeline import barometer_temperature
+
+            stage_cfg, scale_sigma = barometer_temperature(src, cfg, warnings)
+            pressure, seg = segment_floors(src, stage_cfg, warnings)
             warnings += [f"floors: {w}" for w in seg.warnings]
             timings["floors"] = time.perf_counter() - t0
             if len(seg.floors) < 2:
@@ -180,8 +183,8 @@ def build(
                 pressure_png = pool.submit(pressure_plot_png, seg)
 
             t0 = time.perf_counter()
-            graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, cfg, progress,
-                             odom=src.odometry(), pool=pool)
+            graph = optimise(mapping, seg, pressure, src.imu(), extrinsics, stage_cfg, progress,
+                             odom=src.odometry(), pool=pool, scale_prior_sigma=scale_sigma)
             warnings += graph.warnings
             timings["graph"] = time.perf_counter() - t0
 
@@ -457,6 +460,7 @@ def optimise(
     progress: Progress,
     odom: OdomSeries | None = None,
     pool: Executor | None = None,
+    scale_prior_sigma: float | None = None,
 ) -> GraphResult:
     from mfmap.graph.optimize import optimize_building
 
@@ -473,6 +477,7 @@ def optimise(
         progress=progress,
         imu=imu,
         executor=pool,
+        scale_prior_sigma=scale_prior_sigma,
     )
 
 

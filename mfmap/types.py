@@ -29,6 +29,7 @@ class Role(str, Enum):
     IMU = "imu"
     ODOM = "odom"
     TF_STATIC = "tf_static"
+    TEMPERATURE = "temperature"  # the barometer's air temperature (its height scale)
 
 
 # ROS message type (normalised "pkg/msg/Name") -> role.
@@ -42,6 +43,7 @@ ROLE_BY_TYPE: dict[str, Role] = {
     "sensor_msgs/msg/Imu": Role.IMU,
     "nav_msgs/msg/Odometry": Role.ODOM,
     "tf2_msgs/msg/TFMessage": Role.TF_STATIC,
+    "sensor_msgs/msg/Temperature": Role.TEMPERATURE,
 }
 
 
@@ -100,6 +102,19 @@ class PressureSeries:
     stamp_ns: I64
     pressure_pa: F64
     frame_id: str = ""
+
+    def __len__(self) -> int:
+        return int(self.stamp_ns.shape[0])
+
+
+@dataclass(frozen=True)
+class TemperatureSeries:
+    """sensor_msgs/Temperature readings in deg C, sorted by time."""
+
+    stamp_ns: I64
+    temperature_c: F64
+    frame_id: str = ""
+    topic: str = ""
 
     def __len__(self) -> int:
         return int(self.stamp_ns.shape[0])

@@ -65,6 +65,7 @@ from mfmap.types import (
     PressureSeries,
     Role,
     Scan2D,
+    TemperatureSeries,
     TopicInfo,
 )
 
@@ -119,6 +120,8 @@ class _Rows:
             child = str(getattr(msg, "child_frame_id", ""))
         if role == Role.BARO:
             row: tuple[float, ...] = (float(msg.fluid_pressure),)
+        elif role == Role.TEMPERATURE:
+            row = (float(msg.temperature),)
         elif role == Role.IMU:
             w, a, q = msg.angular_velocity, msg.linear_acceleration, msg.orientation
             row = (w.x, w.y, w.z, a.x, a.y, a.z, q.x, q.y, q.z, q.w, float(msg.orientation_covariance[0]))
@@ -144,6 +147,7 @@ class _Rows:
 _FLAT: dict[Role, tuple[int, bool, Callable[[tuple[float, ...]], tuple[float, ...]]]] = {
     Role.IMU: (37, False, lambda d: (d[13], d[14], d[15], d[25], d[26], d[27], d[0], d[1], d[2], d[3], d[4])),
     Role.BARO: (2, False, lambda d: (d[0],)),
+    Role.TEMPERATURE: (2, False, lambda d: (d[0],)),
     Role.ODOM: (85, True, lambda d: d[0:7] + d[43:49]),
 }
 
@@ -383,6 +387,7 @@ class LogSource:
         self._beam_time: str | None = None
         self._beam_report: dict[str, Any] = {}
         self._pressure_unit_seen: PressureUnit | None = None
+        self._temps: dict[str, _Rows] = {}
 
     # ----- context manager ---------------------------------------------------------------
 
@@ -841,6 +846,10 @@ class LogSource:
             return self._small
         topics = {self.roles[r]: r for r in _SMALL_ROLES if r in self.roles}
         out: dict[Role, _Rows] = {role: _Rows() for role in topics.values()}
+        # Every Temperature topic (unless one is chosen): the barometer's is found by its frame.
+        temps = self._temperature_topics()
+        self._temps = {name: _Rows() for name in temps}
+        topics.update({name: Role.TEMPERATURE for name in temps})
         direct: dict[str, bool] = {}  # topic -> the direct parser agreed on its first message
         tf_topics = self._tf_topics_all() if self._tf is None and self._tf_read is None else []
         tf = _TfRead(self)
@@ -849,7 +858,7 @@ class LogSource:
                 tf.add(raw)
                 continue
             role = topics[raw.topic]
-            rows = out[role]
+            rows = self._temps[raw.topic] if role == Role.TEMPERATURE else out[role]
             if rows.error is not None:
                 continue
             try:
@@ -950,6 +959,41 @@ class LogSource:
                 f"{self.path} topic {topic}",
             )
         return unit
+
+    def _temperature_topics(self) -> list[str]:
+        """The chosen Temperature topic when one is set in the config, else every one with messages."""
+        if Role.TEMPERATURE.value in self.config.topics:
+            return [self.roles[Role.TEMPERATURE]]
+        return sorted(t.name for t in self.topics if t.candidate_for == Role.TEMPERATURE and t.count > 0)
+
+    def temperature(self) -> TemperatureSeries | None:
+        """The barometer's air temperature: the sensor_msgs/Temperature topic in the barometer's
+        frame (most barometer drivers publish one), or the configured one; None when there is
+        none. Temperatures of other frames (a CPU, a motor) say nothing about the air."""
+        self._small_streams()
+        baro = self._first_frame(Role.BARO) if Role.BARO in self.roles else None
+        chosen = Role.TEMPERATURE.value in self.config.topics
+        found = []
+        for name, rows in sorted(self._temps.items()):
+            if rows.error is not None:
+                if chosen:
+                    raise rows.error
+                self._warn(f"{name}: {rows.error}; not used for the barometer's scale")
+                continue
+            if rows.stamps and (chosen or (baro is not None and rows.frame.lstrip("/") == baro.lstrip("/"))):
+                found.append((len(rows.stamps), name, rows))
+        if not found:
+            if self._temps and baro is not None and not chosen:
+                frames = ", ".join(f"{n} ('{r.frame}')" for n, r in sorted(self._temps.items()))
+                self._warn(f"no Temperature topic in the barometer's frame '{baro}' ({frames}): the "
+                           "barometer's scale is not taken from a temperature")
+            return None
+        _, name, rows = max(found, key=lambda f: (f[0], f[1]))
+        stamps = np.array(rows.stamps, dtype=np.int64)
+        values = np.array(rows.values, dtype=np.float64).reshape(-1)
+        order = np.argsort(stamps, kind="stable")
+        finite = np.isfinite(values[order])
+        return TemperatureSeries(stamps[order][finite], values[order][finite], rows.frame, name)
 
     def imu(self) -> ImuSeries | None:
         """IMU samples sorted by stamp, or None when the log has no IMU."""
