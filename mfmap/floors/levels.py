@@ -35,8 +35,12 @@ class LevelChange:
 
 # A side with less floor than this gives no useful level (a transition straight after another).
 MIN_SIDE_S = 5.0
-# Residual blocks for the coloured-noise check: the noise is taken as white within a block.
-BLOCK_S = 1.0
+# Residual blocks for the coloured-noise check, the noise taken as white within a block: a
+# phone's barometer wanders over a second, wind gusts and a floor's air over ten or twenty.
+BLOCKS_S = (1.0, 4.0, 16.0)
+# Weather moves the barometric height by up to ~120 Pa/h (1 cm per second of apparent height at
+# most); its slope's prior sigma, in metres per second.
+WEATHER_SLOPE_SIGMA_M_S = 0.002
 
 
 @dataclass(frozen=True)
@@ -140,12 +144,22 @@ def fit_level_change(
     x = _weighted_lstsq(a, z, np.ones(z.shape[0]))
     resid = z - a @ x
     var = float(resid.var())
-    per_block = max(1, round(BLOCK_S / dt))
-    n_blocks = resid.shape[0] // per_block
-    if n_blocks >= 10 and var > 0:
-        blocks = resid[: n_blocks * per_block].reshape(n_blocks, per_block).mean(axis=1)
-        var *= max(1.0, float(blocks.var()) * per_block / var)
-    cov = np.linalg.inv(a.T @ a) * var
+    white = var
+    for block_s in BLOCKS_S:
+        # Correlated over the block: its means vary more than white noise's would.
+        per_block = max(1, round(block_s / dt))
+        n_blocks = resid.shape[0] // per_block
+        if n_blocks >= 8 and white > 0:
+            blocks = resid[: n_blocks * per_block].reshape(n_blocks, per_block).mean(axis=1)
+            var = max(var, float(blocks.var()) * per_block)
+    # The shared slope, with the weather's prior: over a long transition (a stair walk with
+    # stands on its landings, minutes) the slope is extrapolated across it, and a floor's own
+    # wander on one side (gusts correlated over tens of seconds, a zone near a pressurised
+    # stairwell) taken for weather moved a 9 m climb by 1.9 m.
+    info = a.T @ a / max(var, 1e-12)
+    info[2, 2] += WEATHER_SLOPE_SIGMA_M_S**-2
+    cov = np.linalg.inv(info)
+    x = cov @ (a.T @ z) / max(var, 1e-12)
     sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
     return LevelChange(float(x[1] - x[0]), sigma, side, float(step.mean()), "ok")
 
