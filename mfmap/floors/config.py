@@ -57,7 +57,19 @@ class FloorsConfig(BaseModel):
         0.03, gt=0, description="a transition starts and ends where the vertical speed falls below this"
     )
     max_pause_s: float = Field(
-        15.0, ge=0, description="partial height changes this close in time are joined (stair landings)"
+        15.0, ge=0, description="partial height changes this close in time are joined (stair landings); "
+        "further apart too when the level between is no floor visit (landing_max_path_m)"
+    )
+    landing_max_path_m: float = Field(
+        5.0, gt=0,
+        description="a level held between two height changes while the robot travels less than this "
+        "(odometry) is not a floor visit: a stair landing, a floor passed through on the stairs, an "
+        "elevator stop with the robot in the cabin; the changes either side are one transition",
+    )
+    min_visit_s: float = Field(
+        10.0, ge=0,
+        description="without odometry, a level held between two height changes for less than this (or "
+        "while the IMU says the robot stood still) is not a floor visit",
     )
     level_window_s: float = Field(
         60.0, gt=0, description="floor level before/after a transition: robust line over this much of the visit (s)"

@@ -34,6 +34,16 @@ class MotionEvidence:
             return None
         return float(np.mean(self.moving[lo:hi]))
 
+    def path_m(self, start_ns: int, end_ns: int) -> float | None:
+        """Horizontal distance travelled in [start_ns, end_ns] (None without a measured speed)."""
+        if self.speed_m_s is None:
+            return None
+        lo, hi = np.searchsorted(self.stamp_ns, [start_ns, end_ns], side="left")
+        if hi - lo < 2:
+            return 0.0
+        t_s = self.stamp_ns[lo:hi].astype(np.float64) / 1e9
+        v = self.speed_m_s[lo:hi]
+        return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(t_s)))
 
     def standstill_near(self, stamp_ns: int, within_ns: int, threshold_m_s: float, before: bool) -> int | None:
         """The last standstill sample before (or first after) stamp_ns within within_ns."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -163,13 +164,43 @@ def _drop_pulses(runs: list[_Run], trace: FilteredTrace, cfg: FloorsConfig) -> l
         if k in drop or a.sign == b.sign or b.i1 - a.i0 > max_len + (a.i1 - a.i0) + (b.i1 - b.i0):
             continue
         largest = max(abs(a.change_m), abs(b.change_m))
-        if largest < min_h and abs(a.change_m + b.change_m) < 0.5 * largest:
+        # Both edges steps: a stairwell's door crossed (a step) just before a climb's first
+        # partial flight (a ramp) can cancel it as well as a pulse's edges do.
+        if (largest < min_h and abs(a.change_m + b.change_m) < 0.5 * largest
+                and _step_like(a, a.change_m, trace, min_h) and _step_like(b, b.change_m, trace, min_h)):
             drop.update((k, k + 1))
     return [r for k, r in enumerate(runs) if k not in drop]
 
 
-def _join_partial_runs(runs: list[_Run], trace: FilteredTrace, cfg: FloorsConfig) -> list[_Run]:
-    """Join same-direction runs split by a short pause (a stair landing) when one is partial.
+# Is the level held between grid indices i0 and i1 a floor visit? (`_stay_test`)
+StayTest = Callable[[int, int], bool]
+
+
+def _stay_test(motion: MotionEvidence | None, cfg: FloorsConfig, dt_s: float, start_ns: int) -> StayTest:
+    """A level held between two height changes is a floor visit when the robot goes somewhere on
+    it: with odometry, at least landing_max_path_m of travel (a switch-back's half landing or a
+    floor passed through on the stairs is a turn and a step or two across; in an elevator stop the
+    robot stays in the cabin); without, at least min_visit_s, and not standing still all along
+    by the IMU."""
+
+    def is_visit(i0: int, i1: int) -> bool:
+        a, b = start_ns + round(i0 * dt_s * 1e9), start_ns + round(i1 * dt_s * 1e9)
+        path = motion.path_m(a, b) if motion is not None else None
+        if path is not None:
+            return path >= cfg.landing_max_path_m
+        if (i1 - i0) * dt_s < cfg.min_visit_s:
+            return False
+        moving = motion.fraction_moving(a, b) if motion is not None else None
+        return moving is None or moving >= 0.1
+
+    return is_visit
+
+
+def _join_partial_runs(
+    runs: list[_Run], trace: FilteredTrace, cfg: FloorsConfig, is_visit: StayTest | None = None
+) -> list[_Run]:
+    """Join same-direction runs split by a pause (a stair landing) when one is partial: a short
+    pause always, a longer one when the level between is no floor visit (`is_visit`).
 
     Closest pairs are joined first, so a partial climb goes with the neighbour it belongs to
     rather than with whichever came first; a movement the other way in between (a phone lifted
@@ -189,7 +220,13 @@ def _join_partial_runs(runs: list[_Run], trace: FilteredTrace, cfg: FloorsConfig
         return float(np.max(r.sign * trace.jump_m[r.i0 : r.i1])) >= 0.5 * abs(r.change_m)
 
     def joinable(a: _Run, b: _Run) -> bool:
-        if a.sign != b.sign or b.i0 - a.i1 > max_gap:
+        if a.sign != b.sign:
+            return False
+        if b.i0 - a.i1 > max_gap and (is_visit is None or is_visit(a.i1, b.i0)
+                                      or _step_like(a, a.change_m, trace, min_h)
+                                      or _step_like(b, b.change_m, trace, min_h)):
+            # Across a long stand only climbs: a pressurised stairwell's pressure mixes in
+            # over a second as the robot walks out of it, a step the pause-free climb is not.
             return False
         if abs(a.change_m) >= min_h and abs(b.change_m) >= min_h:
             return False
@@ -264,9 +301,11 @@ def find_transitions(
 ) -> tuple[list[_Run], list[float], list[tuple[float, float]], list[str]]:
     """Transitions as runs, the level change across each, their (start, end) in grid seconds,
     and warnings about height changes that were not counted."""
-    runs = _join_partial_runs(_motion_runs(trace, cfg), trace, cfg)
     min_h = cfg.min_floor_height_m
     dt_s = trace.grid.dt_s
+    is_visit = _stay_test(motion, cfg, dt_s, start_ns)
+    travel_known = motion is not None and motion.speed_m_s is not None
+    runs = _join_partial_runs(_motion_runs(trace, cfg), trace, cfg, is_visit)
     warnings: list[str] = []
     cache: dict[tuple[int, ...], tuple[float, float]] = {}  # fits of runs whose window is unchanged
     # Dropping a run widens its neighbours' level windows, so repeat until nothing changes.
@@ -276,22 +315,35 @@ def find_transitions(
         if cfg.method is FilterMethod.RTS:
             hints: list[TransitionKind | None] | None = None
             if motion is not None:
-                kinds = [
-                    _transition_kind(motion, start_ns + round(r.i0 * dt_s * 1e9), start_ns + round(r.i1 * dt_s * 1e9))
-                    for r in runs
-                ]
+                kinds = [_run_kind(motion, r, dt_s, start_ns) for r in runs]
                 hints = [None if h is TransitionKind.UNKNOWN else h for h in kinds]
             times = _refine_joined(runs, trace, hints, cache)
         else:  # seed 000's baseline: where the smoothed speed crosses the stop threshold
             times = [(r.i0 * dt_s, (r.i1 - 1) * dt_s) for r in runs]
         speeds = [abs(c) / max(b - a, 1e-3) for c, (a, b) in zip(changes, times, strict=True)]
+        # How long each took for the acceleration's bound: the fitted ramp, or the run of
+        # vertical speed when that is longer. A closed cabin's pressure leads its height (the
+        # moving cabin's piston pressure): the ramp fitted to a 4 m ride of 6 s came out 3 s.
+        spans = [max(b - a, sum(i1 - i0 for i0, i1 in r.parts()) * dt_s)
+                 for r, (a, b) in zip(runs, times, strict=True)]
         # Rest to rest, a height change d takes at least 2 sqrt(d / a_max) even at full thrust;
         # a pair of pressure steps (door slammed, then the HVAC) is much faster.
         feasible = [
             v <= cfg.max_vertical_speed_m_s
-            and b - a >= 2.0 * np.sqrt(abs(c) / cfg.max_vertical_accel_m_s2)
-            for c, (a, b), v in zip(changes, times, speeds, strict=True)
+            and d >= 2.0 * np.sqrt(abs(c) / cfg.max_vertical_accel_m_s2)
+            and not _step_like(r, c, trace, min_h)
+            for r, c, d, v in zip(runs, changes, spans, speeds, strict=True)
         ]
+        # First the climbs and rides that are one transition (a level between them no visit),
+        # a partial one among them too: a half flight that alone is no floor change belongs to
+        # the climb, not to the floor it is dropped onto.
+        # Only where odometry measures the travel between: a phone's trace (no motion) has
+        # partial wiggles next to real visits, and joining one shortens the visit it sits in.
+        climbs = [ok and (abs(c) >= min_h or travel_known) for c, ok in zip(changes, feasible, strict=True)]
+        merged = _merge_stays(runs, times, dt_s, is_visit, climbs)
+        if merged is not None:
+            runs = merged
+            continue
         keep = [abs(c) >= min_h and ok for c, ok in zip(changes, feasible, strict=True)]
         if all(keep):
             return runs, changes, times, warnings
@@ -309,6 +361,58 @@ def find_transitions(
                     f"min_floor_height_m ({min_h:g} m): not counted as a floor change"
                 )
         runs = [r for r, ok in zip(runs, keep, strict=True) if ok]
+
+
+def _step_like(run: _Run, change_m: float, trace: FilteredTrace, min_h: float) -> bool:
+    """A partial change with half of it within a second: a pressure step (a door, the zone of
+    a pressurised stairwell mixing in over a second or so), not a flight of stairs (a third of a
+    metre a second at most)."""
+    level = trace.level_smooth_m
+    if level is None or abs(change_m) >= min_h or abs(change_m) == 0:
+        return False
+    half = max(1, round(0.5 / trace.grid.dt_s))
+    i0, i1 = max(run.i0 - half, half), min(run.i1 + half, level.shape[0] - half)
+    if i1 <= i0:
+        return False
+    idx = np.arange(i0, i1)
+    jump = np.sign(change_m) * (level[idx + half] - level[idx - half])
+    return bool(float(np.max(jump)) >= 0.5 * abs(change_m))
+
+
+def _merge_stays(runs: list[_Run], times: list[tuple[float, float]], dt_s: float,
+                 is_visit: StayTest, climbs: list[bool]) -> list[_Run] | None:
+    """Two climbs or rides in one direction whose level between is no floor visit (a floor
+    passed through on the stairs, an elevator stop with the robot in the cabin, a half landing)
+    as one, from the floor left to the floor reached; None when there are none. Only runs that
+    are `climbs` (a physically possible speed: a pressure step is not part of a climb).
+    The first such pair only: the levels and times are fitted again before the next. Up and
+    straight back down stays two transitions: taken for one, a floor the robot did reach
+    would vanish."""
+    for k in range(len(runs) - 1):
+        a, b = runs[k], runs[k + 1]
+        if a.sign != b.sign or not (climbs[k] and climbs[k + 1]):
+            continue
+        i0 = max(a.i1, round(times[k][1] / dt_s))
+        i1 = max(i0, min(b.i0, round(times[k + 1][0] / dt_s)))
+        if not is_visit(i0, i1):
+            joined = _Run(a.i0, b.i1, a.sign, a.change_m + b.change_m, a.parts() + b.parts())
+            return [*runs[:k], joined, *runs[k + 2:]]
+    return None
+
+
+def _run_kind(motion: MotionEvidence, run: _Run, dt_s: float, start_ns: int) -> TransitionKind:
+    """Stairs or elevator by the motion while the height changes: a joined transition's stands on
+    landings and stops in between are left out (on stairs they would make it look like a ride)."""
+    moving = total = 0.0
+    for i0, i1 in run.parts():
+        a, b = start_ns + round(i0 * dt_s * 1e9), start_ns + round(i1 * dt_s * 1e9)
+        share = motion.fraction_moving(a, b)
+        if share is not None:
+            moving += share * (i1 - i0)
+            total += i1 - i0
+    if total == 0:
+        return TransitionKind.UNKNOWN
+    return TransitionKind.STAIRS if moving / total >= _MOVING_FRACTION_STAIRS else TransitionKind.ELEVATOR
 
 
 def _refine_joined(
@@ -489,15 +593,6 @@ def _fitted_changes(grid: Grid, bounds: list[tuple[int, int]], changes: list[flo
     return out
 
 
-def _transition_kind(motion: MotionEvidence | None, start_ns: int, end_ns: int) -> TransitionKind:
-    if motion is None:
-        return TransitionKind.UNKNOWN
-    fraction = motion.fraction_moving(start_ns, end_ns)
-    if fraction is None:
-        return TransitionKind.UNKNOWN
-    return TransitionKind.STAIRS if fraction >= _MOVING_FRACTION_STAIRS else TransitionKind.ELEVATOR
-
-
 def _stairs_from_standstill(
     motion: MotionEvidence, start_ns: int, end_ns: int, cfg: FloorsConfig
 ) -> tuple[int, int]:
@@ -555,7 +650,9 @@ def segment_pressure(
 
     end_s = float(t_s[-1])
     bounds = [(to_ns(max(0.0, a)), to_ns(min(b, end_s))) for a, b in times]
-    kinds = [_transition_kind(motion, a, b) for a, b in bounds]
+    dt_s = trace.grid.dt_s
+    kinds = [TransitionKind.UNKNOWN if motion is None else _run_kind(motion, r, dt_s, int(stamp_ns[0]))
+             for r in runs]
     if motion is not None:
         bounds = [
             _stairs_from_standstill(motion, a, b, cfg) if kind is TransitionKind.STAIRS else (a, b)

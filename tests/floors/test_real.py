@@ -7,9 +7,13 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mfmap.config import MfmapConfig
 from mfmap.floors import segment_path
+from mfmap.floors.io import read_pressure_csv
+from mfmap.floors.segment import segment_pressure
+from mfmap.types import PressureSeries
 
 TRIAL51 = "IPIN2023_T3_TrainingTrial51_repetition02"
 TRIAL04 = "IPIN2023_T3_TrainingTrial04_repetition03"
@@ -72,3 +76,25 @@ def test_raw_getsensordata_log_gives_the_same_floors(shared_dir: Path, ipin_dir:
     from_csv = segment_path(ipin_dir / f"{TRIAL51}_pressure.csv", MfmapConfig())
     assert np.array_equal(from_raw.stamp_ns, from_csv.stamp_ns)
     assert from_raw.transitions == from_csv.transitions
+
+
+@pytest.mark.parametrize("cut_s", [(85.0, 95.0), (87.0, 95.0), (86.0, 97.0)])
+def test_down_two_floors_without_stopping_on_the_middle_one(ipin_dir: Path, cut_s: tuple[float, float]) -> None:
+    """Trial51 with most of the first stay on floor -1 cut out (the samples after it moved back):
+    the phone goes down two floors by the stairs and holds the middle one for 5-10 s on the way,
+    no visit. One transition 0 -> -2, no extra floor."""
+    pressure, _ = read_pressure_csv(ipin_dir / f"{TRIAL51}_pressure.csv")
+    t_s = (pressure.stamp_ns - pressure.stamp_ns[0]) / 1e9
+    a, b = cut_s
+    keep = (t_s < a) | (t_s > b)
+    shift = np.where(t_s > b, round((b - a) * 1e9), 0)
+    spliced = PressureSeries((pressure.stamp_ns - shift)[keep], pressure.pressure_pa[keep])
+    seg = segment_pressure(spliced, None, MfmapConfig().floors)
+    assert len(seg.floors) == 3
+    start_id = seg.visits()[0][0]
+    assert [fid - start_id for fid, _, _ in seg.visits()] == [0, -2, -1, 0, -1, -2, -1, 0]
+    # The joined transition runs from the first flight's start to the second's end.
+    first = seg.transitions[0]
+    assert abs((first.start_ns - pressure.stamp_ns[0]) / 1e9 - 63.7) < 3.0
+    assert abs((first.end_ns - pressure.stamp_ns[0]) / 1e9 - (108.7 - (b - a))) < 3.0
+    assert first.height_change_m < -5.0

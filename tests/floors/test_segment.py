@@ -8,6 +8,7 @@ import pytest
 
 from mfmap.errors import MissingDataError
 from mfmap.floors.config import FloorsConfig
+from mfmap.floors.motion import MotionEvidence
 from mfmap.floors.segment import segment_pressure
 from mfmap.sim.traces import Leg, SyntheticTrace, building_walk, synthetic_trace
 from mfmap.types import FloorSegmentation, PressureSeries, TransitionKind
@@ -117,6 +118,46 @@ def test_stair_landing_pause_is_one_transition(cfg: FloorsConfig) -> None:
     start = seg.stamp_ns[0]
     assert abs((seg.transitions[0].start_ns - start) / 1e9 - 40.0) < 1.0
     assert abs((seg.transitions[0].end_ns - start) / 1e9 - (40.0 + 2 * 1.6 / 0.3 + 6.0)) < 1.0
+
+
+def _odometry(trace: SyntheticTrace, legs: list[Leg], walk_m_s: list[float]) -> MotionEvidence:
+    """Odometry speed per leg (one value per leg), sampled at the trace's stamps."""
+    bounds = np.cumsum([leg.duration_s if leg.kind == "stay" else abs(leg.height_change_m) / leg.speed_m_s
+                        for leg in legs])
+    speed = np.asarray(walk_m_s)[np.minimum(np.searchsorted(bounds, trace.times_s), len(legs) - 1)]
+    return MotionEvidence(trace.pressure.stamp_ns, speed > 0.1, "odometry", speed.astype(np.float64))
+
+
+def test_switch_back_landing_of_half_a_minute_is_one_transition(cfg: FloorsConfig) -> None:
+    """Two half flights of 1.8 m, 30 s standing on the landing between (each half is below
+    min_floor_height_m, the stand longer than any pause): one floor change of 3.6 m, because
+    the odometry says the robot went nowhere on the landing."""
+    half = Leg("stairs", height_change_m=1.8, speed_m_s=0.3)
+    legs = [Leg("stay", 60.0), half, Leg("stay", 30.0), half, Leg("stay", 60.0)]
+    trace = synthetic_trace(legs, seed=3)
+    motion = _odometry(trace, legs, [0.5, 0.4, 0.0, 0.4, 0.5])
+    seg = segment_pressure(trace.pressure, motion, cfg)
+    assert len(seg.floors) == 2 and len(seg.transitions) == 1
+    assert abs(seg.transitions[0].height_change_m - 3.6) < 0.3
+    assert seg.transitions[0].kind is TransitionKind.STAIRS
+    start = seg.stamp_ns[0]
+    assert abs((seg.transitions[0].start_ns - start) / 1e9 - 60.0) < 2.0
+    assert abs((seg.transitions[0].end_ns - start) / 1e9 - (60.0 + 12.0 + 30.0)) < 2.0
+
+
+def test_floor_passed_through_on_the_stairs_is_not_a_floor_visit(cfg: FloorsConfig) -> None:
+    """Up two storeys of unequal height (3.0 m, then 4.2 m) by the stairs, crossing the middle
+    floor's landing in 12 s and 3 m of travel: one transition to the top floor, two floors."""
+    legs = [Leg("stay", 60.0), Leg("stairs", height_change_m=3.0, speed_m_s=0.3), Leg("stay", 12.0),
+            Leg("stairs", height_change_m=4.2, speed_m_s=0.3), Leg("stay", 60.0)]
+    trace = synthetic_trace(legs, seed=5)
+    motion = _odometry(trace, legs, [0.5, 0.4, 0.25, 0.4, 0.5])
+    seg = segment_pressure(trace.pressure, motion, cfg)
+    assert len(seg.floors) == 2 and len(seg.transitions) == 1
+    assert abs(seg.transitions[0].height_change_m - 7.2) < 0.3
+    # Walking across it (12 m) makes it a visit: three floors.
+    motion = _odometry(trace, legs, [0.5, 0.4, 1.0, 0.4, 0.5])
+    assert len(segment_pressure(trace.pressure, motion, cfg).floors) == 3
 
 
 def test_same_input_same_output(cfg: FloorsConfig) -> None:
