@@ -346,6 +346,7 @@ def find_transitions(
             continue
         keep = [abs(c) >= min_h and ok for c, ok in zip(changes, feasible, strict=True)]
         if all(keep):
+            times = [_after_leading_step(r, t, trace, min_h) for r, t in zip(runs, times, strict=True)]
             return runs, changes, times, warnings
         for change, (a, _), v, ok in zip(changes, times, speeds, keep, strict=True):
             if ok:
@@ -377,6 +378,22 @@ def _step_like(run: _Run, change_m: float, trace: FilteredTrace, min_h: float) -
     idx = np.arange(i0, i1)
     jump = np.sign(change_m) * (level[idx + half] - level[idx - half])
     return bool(float(np.max(jump)) >= 0.5 * abs(change_m))
+
+
+def _after_leading_step(run: _Run, times: tuple[float, float], trace: FilteredTrace,
+                        min_h: float) -> tuple[float, float]:
+    """A joined transition whose first part is a pressure step (the stairwell's door crossed,
+    its own pressure, and a stand before the flight) starts where the next part does: the
+    height does not change before it."""
+    parts = run.parts()
+    if len(parts) < 2 or trace.level_smooth_m is None:
+        return times
+    (i0, i1), (j0, _) = parts[0], parts[1]
+    level = trace.level_smooth_m
+    change = float(level[min(i1, level.shape[0] - 1)] - level[i0])
+    if not _step_like(_Run(i0, i1, run.sign, change), change, trace, min_h):
+        return times
+    return (max(times[0], j0 * trace.grid.dt_s), times[1])
 
 
 def _merge_stays(runs: list[_Run], times: list[tuple[float, float]], dt_s: float,

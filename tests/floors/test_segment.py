@@ -160,6 +160,23 @@ def test_floor_passed_through_on_the_stairs_is_not_a_floor_visit(cfg: FloorsConf
     assert len(segment_pressure(trace.pressure, motion, cfg).floors) == 3
 
 
+def test_a_stand_after_the_stairwell_door_is_not_part_of_the_walk(cfg: FloorsConfig) -> None:
+    """Through the stairwell's door (its own pressure, 7 Pa above the floor's, mixes in within a
+    second), 12 s standing, then 3.2 m down the stairs: the walk starts with the flight, not
+    at the door."""
+    legs = [Leg("stay", 60.0), Leg("stay", 12.0), Leg("stairs", height_change_m=-3.2, speed_m_s=0.3),
+            Leg("stay", 60.0)]
+    trace = synthetic_trace(legs, seed=4)
+    t = trace.times_s
+    door = np.clip((t - 60.0) / 0.8, 0.0, 1.0) * 7.0
+    pressure = PressureSeries(trace.pressure.stamp_ns, trace.pressure.pressure_pa + door)
+    motion = _odometry(trace, legs, [0.5, 0.0, 0.4, 0.5])
+    seg = segment_pressure(pressure, motion, cfg)
+    assert len(seg.floors) == 2 and len(seg.transitions) == 1
+    start = seg.stamp_ns[0]
+    assert abs((seg.transitions[0].start_ns - start) / 1e9 - 72.0) < 2.0
+
+
 def test_a_revisit_the_chain_misses_is_placed_by_all_transitions() -> None:
     """0 -> 1 -> 2 -> back to 0 (read -7.1 m: 1.1 m from floor 0, past the 1 m tolerance, a new
     floor for the chain) -> 1 (+3.5 m). The loop's least squares put that floor 0.8 m from floor
