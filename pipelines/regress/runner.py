@@ -85,7 +85,10 @@ def resolve_config(manifest: Manifest, entry: LogEntry) -> dict[str, Any]:
         config = config_from_dict(data, f"{source} (logs[{entry.name}])")
     except MfmapError as err:
         raise ManifestError(str(err).split(": ", 1)[-1], f"{source} (logs[{entry.name}])") from err
-    return config.model_dump(mode="json")
+    # Only what the manifest set: a stage that tells a user's setting from its default (the
+    # barometer's Temperature topic sets floors.temperature_k unless the config does) must see
+    # the defaults as defaults.
+    return config.model_dump(mode="json", exclude_unset=True)
 
 
 def make_jobs(manifest: Manifest, out_dir: Path) -> list[LogJob]:

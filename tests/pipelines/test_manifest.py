@@ -170,6 +170,8 @@ def test_config_layers_and_bad_config_key(write_manifest: Callable[..., Path], t
     a, b = (resolve_config(m, e) for e in m.logs)
     assert a["graph"]["barometer_factors"] is False and a["mapping"]["voxel_size_m"] == 0.3
     assert b["graph"]["barometer_factors"] is True and b["mapping"]["voxel_size_m"] == 0.3
+    # Only what the layers set: a default stays a default for the stage that tells them apart.
+    assert "floors" not in a and set(a["mapping"]) == {"voxel_size_m"}
     jobs = make_jobs(m, tmp_path / "out")
     assert [j.name for j in jobs] == ["a", "b"]
     assert jobs[0].out_dir == str(tmp_path / "out" / "logs" / "a")
