@@ -1,4 +1,4 @@
-"""Barometric height: the hypsometric relation of seeds/000 (eq. 3) and its inverse.
+"""Barometric height: the hypsometric relation (eq. 3 of the LeGO-LOAM elevator paper) and its inverse.
 
     z = T0 / L * ((P2 / P1) ** (-L * R / g) - 1)
 
@@ -13,7 +13,7 @@ from typing import TypeVar
 import numpy as np
 import numpy.typing as npt
 
-T0_K = 295.0  # room temperature used by seeds/000
+T0_K = 295.0  # room temperature, as in the LeGO-LOAM elevator paper
 LAPSE_K_PER_M = 0.0065
 R_J_PER_KG_K = 287.053
 G_M_PER_S2 = 9.81

@@ -781,7 +781,7 @@ def _drop_cabin(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[
 def _outside_cabins(points_base: np.ndarray, pose: F64, stamp_ns: int, cabins: list[_Cabin]) -> np.ndarray:
     """Mask of the points that are not returns from an elevator cabin or seen through it.
 
-    Cabin walls are often mirrors (seed 000): what a ray shows after crossing the cabin is a
+    Cabin walls are often mirrors (the LeGO-LOAM elevator paper): what a ray shows after crossing the cabin is a
     reflection, not the building. In the base frame of the scan, per cabin: points inside the
     cabin box, and points whose ray from the sensor leaves the box before reaching them.
     """

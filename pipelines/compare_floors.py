@@ -1,4 +1,4 @@
-"""Seed 000's sliding-mean baseline against the floors stage's method, case by case.
+"""The LeGO-LOAM elevator paper's sliding-mean baseline against the floors stage's method, case by case.
 
 For every simulator scenario (its own barometer model), two harsh synthetic walks and the two
 real IPIN 2023 phone traces, both methods run the same transition/floor pipeline; only the

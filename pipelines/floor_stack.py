@@ -5,7 +5,7 @@
 Per floor, the 2D rigid fit (x, y, yaw; Umeyama without scale) of the build's trajectory on that
 floor to the ground truth at the same times; between adjacent floors, how far the two fits
 disagree (translation at the upper floor's centroid, yaw). A map whose floors sit exactly above
-each other has the same fit on every floor, whatever each floor's own drift: this is seed 002's
+each other has the same fit on every floor, whatever each floor's own drift: this is the multi-floor precision mapping paper's
 inter-floor x, y, yaw error, where `mfmap eval`'s floors.inter* measure it across each ride.
 """
 

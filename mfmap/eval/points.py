@@ -1,4 +1,4 @@
-"""Checkpoint errors: the build's position at each surveyed point (seed 000, Table I)."""
+"""Checkpoint errors: the build's position at each surveyed point (the LeGO-LOAM elevator paper, Table I)."""
 
 from __future__ import annotations
 
@@ -128,7 +128,7 @@ def points_metrics(errors: list[PointError]) -> dict[str, float]:
 
 
 def points_table(errors: list[PointError]) -> dict[str, object]:
-    """Seed 000 Table I layout: one row per label, ground truth, then one estimate per floor."""
+    """The Table I layout of the LeGO-LOAM elevator paper: one row per label, ground truth, then one estimate per floor."""
     floors = sorted({e.floor for e in errors})
     labels: list[str] = []
     for e in errors:

@@ -20,11 +20,11 @@ def _num(value: Any, digits: int = 3) -> str:
 
 
 def points_table(result: EvalResult) -> Table:
-    """Seed 000 Table I: ground truth and the estimate on each floor, per checkpoint."""
+    """Table I of the LeGO-LOAM elevator paper: ground truth and the estimate on each floor, per checkpoint."""
     data = result.tables["points"]
     floors: list[int] = data["floors"]
     m = result.metrics
-    table = Table(title="Checkpoints: ground truth and estimated position (seed 000, Table I layout)")
+    table = Table(title="Checkpoints: ground truth and estimated position (Table I layout of the LeGO-LOAM elevator paper)")
     table.add_column("Point")
     table.add_column("Ground truth (m)")
     for fid in floors:
@@ -79,7 +79,7 @@ def trajectory_table(result: EvalResult) -> Table:
 
 
 def floors_tables(result: EvalResult) -> list[RenderableType]:
-    """Floor count and elevation, then seed 002 Table 1 (x, y, yaw) and Table 2 (z)."""
+    """Floor count and elevation, then the multi-floor precision mapping paper's Table 1 (x, y, yaw) and Table 2 (z)."""
     m = result.metrics
     data = result.tables["floors"]
     share = m.get("floors.time_correct_share")
@@ -100,8 +100,8 @@ def floors_tables(result: EvalResult) -> list[RenderableType]:
             _num(row.get("est_elevation_m")),
             _num(row.get("error_m")),
         )
-    t1 = Table(title="X-axis, y-axis and yaw error between floors (seed 002, Table 1)")
-    t2 = Table(title="Z-axis error between floors (seed 002, Table 2)")
+    t1 = Table(title="X-axis, y-axis and yaw error between floors (multi-floor precision mapping paper, Table 1)")
+    t2 = Table(title="Z-axis error between floors (multi-floor precision mapping paper, Table 2)")
     for name in ("floors", "rides", "X error (m)", "Y error (m)", "Yaw error (°)"):
         t1.add_column(name, justify="right")
     for name in ("floors", "Z error (m)", "Error rate (%)"):

@@ -9,7 +9,7 @@ class FilterMethod(str, Enum):
     """How the height trace is smoothed before transitions are looked for."""
 
     RTS = "rts"  # spike rejection + forward-backward (Rauch-Tung-Striebel) constant-velocity smoother
-    SLIDING_MEAN = "sliding_mean"  # seed 000: mean of the last 30 samples (the baseline)
+    SLIDING_MEAN = "sliding_mean"  # the LeGO-LOAM elevator paper's: mean of the last 30 samples
 
 
 class FloorsConfig(BaseModel):
@@ -18,16 +18,18 @@ class FloorsConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     temperature_k: float = Field(
-        295.0, ge=150.0, le=400.0, description="air temperature for pressure -> height (seed 000)"
+        295.0, ge=150.0, le=400.0,
+        description="air temperature for pressure -> height (the barometer's Temperature topic "
+        "sets it when this is not given)",
     )
     min_floor_height_m: float = Field(
         2.0, gt=0, description="smallest height change that is a floor change"
     )
     method: FilterMethod = Field(
-        FilterMethod.RTS, description="rts (spike rejection + RTS smoother) or sliding_mean (seed 000)"
+        FilterMethod.RTS, description="rts (spike rejection + RTS smoother) or sliding_mean (the LeGO-LOAM elevator paper's filter)"
     )
     sliding_window_samples: int = Field(
-        30, ge=1, description="window of the sliding_mean baseline, in samples (seed 000: 30)"
+        30, ge=1, description="window of the sliding_mean baseline, in samples (the paper's 30)"
     )
     spike_window_s: float = Field(
         1.0, gt=0, description="half-width of the Hampel window that rejects single-sample spikes"

@@ -1,5 +1,5 @@
 """Height-trace filters: uniform resampling, Hampel spike rejection, the steady-state RTS smoother
-and seed 000's sliding mean. Everything is vectorised (scipy.signal / scipy.ndimage), so an hour
+and the LeGO-LOAM elevator paper's sliding mean. Everything is vectorised (scipy.signal / scipy.ndimage), so an hour
 at 50 Hz filters in tens of milliseconds.
 """
 
@@ -79,7 +79,7 @@ def hampel(values: F64, half_window: int, threshold_sigma: float) -> tuple[F64, 
 
 
 def sliding_mean(values: F64, window: int) -> F64:
-    """Seed 000's filter: the mean of the last `window` samples (fewer at the start)."""
+    """The filter of the LeGO-LOAM elevator paper: the mean of the last `window` samples (fewer at the start)."""
     csum = np.concatenate(([0.0], np.cumsum(values)))
     idx = np.arange(values.shape[0])
     lo = np.maximum(0, idx + 1 - window)

@@ -4,7 +4,7 @@ The steps, in order (`segment_pressure`):
 1. pressure -> height with the hypsometric relation (mfmap.baro), resampled onto a uniform grid;
 2. spike rejection (Hampel), removal of short door/HVAC pressure pulses (grey-scale opening and
    closing, checked for abrupt edges and level flanks), then the offline RTS smoother with
-   steady-state gains (or, as the baseline, seed 000's 30-sample sliding mean);
+   steady-state gains (or, as the baseline, the LeGO-LOAM elevator paper's 30-sample sliding mean);
 3. runs of sustained vertical speed; cancelling up/down pairs (pulses) dropped; partial runs
    split by a pause (a stair landing) joined, closest first; a run is a transition when the
    level changes across it by >= min_floor_height_m at a physically possible speed and
@@ -318,7 +318,7 @@ def find_transitions(
                 kinds = [_run_kind(motion, r, dt_s, start_ns) for r in runs]
                 hints = [None if h is TransitionKind.UNKNOWN else h for h in kinds]
             times = _refine_joined(runs, trace, hints, cache)
-        else:  # seed 000's baseline: where the smoothed speed crosses the stop threshold
+        else:  # the LeGO-LOAM elevator paper's baseline: where the smoothed speed crosses the stop threshold
             times = [(r.i0 * dt_s, (r.i1 - 1) * dt_s) for r in runs]
         speeds = [abs(c) / max(b - a, 1e-3) for c, (a, b) in zip(changes, times, strict=True)]
         # How long each took for the acceleration's bound: the fitted ramp, or the run of

@@ -13,7 +13,7 @@ GRAVITY_M_S2 = 9.80665
 
 
 def pressure_to_height_m(pressure_pa: F64, reference_pa: float, temperature_k: float) -> F64:
-    """Hypsometric height above the reference pressure (seed 000 eq. 3, shared with floors/sim)."""
+    """Hypsometric height above the reference pressure (eq. 3 of the LeGO-LOAM elevator paper)."""
     return np.asarray(height_from_pressure(np.asarray(pressure_pa, dtype=np.float64), reference_pa, temperature_k))
 
 

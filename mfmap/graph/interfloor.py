@@ -3,7 +3,7 @@
 Each floor's cloud is cut to a height band above its own floor level and shifted to floor-relative
 height, so walls that run through both floors (outer walls, shafts, stairwells, pillars) overlap
 in 3D. FPFH + RANSAC gives a global candidate, point-to-plane ICP refines it, and every estimate is
-projected onto gravity-aligned (x, y, yaw). Similar or symmetric floors are a trap (seed 001): a
+projected onto gravity-aligned (x, y, yaw). Similar or symmetric floors are a trap (Fan et al.'s corridors): a
 match is rejected when a distinct solution scores nearly as well, or when it is far from the
 elevator's prior.
 """

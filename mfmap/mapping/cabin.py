@@ -1,6 +1,6 @@
 """Dropping returns from inside an elevator cabin while the robot enters or leaves it.
 
-Seed 000 (section III-C): cabins are small, often reflective boxes; their walls dominate a scan
+The LeGO-LOAM elevator paper (section III-C): cabins are small, often reflective boxes; their walls dominate a scan
 taken at the door and give registration a structure that is not part of the floor (and mirror
 ghosts). The cabin is where the robot stood during the ride: a box around the base pose there.
 """

@@ -1,4 +1,4 @@
-"""Floors against ground truth: counts, time on the right floor, elevations, seed 002 tables."""
+"""Floors against ground truth: counts, time on the right floor, elevations, the multi-floor precision mapping paper's tables."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Checkpoints: seed 000's Table I as a known-answer test, Hilti points, bad input."""
+"""Checkpoints: the LeGO-LOAM elevator paper's Table I as a known-answer test, Hilti points, bad input."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from mfmap.eval import evaluate
 from mfmap.eval.points import hilti_points
 from mfmap.eval.report import render_eval
 
-# Seed 000, Table I: ground truth (x, y) with z 0 / 4.7, and the estimate on each floor.
+# The LeGO-LOAM elevator paper, Table I: ground truth (x, y) with z 0 / 4.7, and the estimate on each floor.
 TABLE_I = {
     "P1": ((0, 0), (0, 0, 0), (0.21, -0.19, 4.95)),
     "P2": ((6, -2), (6.07, -1.8, -0.05), (6.2, -1.98, 4.94)),

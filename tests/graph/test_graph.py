@@ -34,7 +34,7 @@ def _fit_xyyaw(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 
 def interfloor_error(b: SyntheticBuilding, poses: dict[int, np.ndarray], lower: int, upper: int) -> tuple[float, float, float, float]:
-    """x, y, yaw (deg) and z error of floor `upper` relative to floor `lower` (seed 002 style)."""
+    """x, y, yaw (deg) and z error of floor `upper` relative to floor `lower` (as the multi-floor precision mapping paper measures it)."""
     fits = {}
     z_err = {}
     for f in (lower, upper):

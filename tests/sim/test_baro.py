@@ -1,4 +1,4 @@
-"""mfmap.baro: the hypsometric relation of seeds/000 eq. 3, and its inverse."""
+"""mfmap.baro: the hypsometric relation, eq. 3 of the LeGO-LOAM elevator paper, and its inverse."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def test_matches_seed_equation_3() -> None:
     p1, p2 = 101_325.0, 101_270.0
     z = 295.0 / 0.0065 * ((p2 / p1) ** (-0.0065 * 287.053 / 9.81) - 1.0)
     assert height_from_pressure(p2, p1) == pytest.approx(z, abs=1e-9)
-    assert z == pytest.approx(4.6876, abs=1e-3)  # 55 Pa is about one 4.7 m floor (seeds/000 Fig. 6)
+    assert z == pytest.approx(4.6876, abs=1e-3)  # 55 Pa is about one 4.7 m floor (the LeGO-LOAM elevator paper's Fig. 6)
 
 
 @pytest.mark.parametrize("h_m", [-12.0, -4.0, 0.0, 0.3, 4.7, 20.0, 150.0])

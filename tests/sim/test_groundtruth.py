@@ -241,7 +241,7 @@ def test_cabin_walls_return_spurious_ranges(tiny: Path) -> None:
     assert len(ranges) >= 30
     r = np.concatenate(ranges)
     # The cabin's inner walls are 0.95..1.45 m from the lidar horizontally; a share of the
-    # returns come back longer (mirror paths), as on the real robot of seeds/000.
+    # returns come back longer (mirror paths), as on the real robot of the LeGO-LOAM elevator paper.
     spurious = float(np.mean(r > 1.6))
     assert 0.15 < spurious < 0.45
     assert float(np.mean(r < 1.55)) > 0.5
