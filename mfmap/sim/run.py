@@ -87,6 +87,8 @@ def reference_pressure_pa(seed: int) -> float:
 def build_trajectory(spec: ScenarioSpec, building: Building, seed: int, reps: int) -> Trajectory:
     rng = np.random.default_rng([seed, 3])
     builder = RouteBuilder(building, spec.start_floor, rng, v_max=spec.v_max)
+    if spec.session is not None:
+        spec.session.place(builder)
     spec.route(builder, reps)
     return builder.finish(rng)
 
@@ -128,16 +130,20 @@ def simulate(
         raise OutputError(f"cannot create the output folder ({err.strerror})", out) from err
     reps = max(1, round(duration_scale))
     building = building_for(spec, seed)
-    traj = build_trajectory(spec, building, seed, reps)
-    start_ns = start_stamp_ns(seed)
+    # A session of a building shares the building with its other sessions, not their day.
+    log_seed = spec.session.log_seed(seed) if spec.session is not None else seed
+    traj = build_trajectory(spec, building, log_seed, reps)
+    start_ns = start_stamp_ns(log_seed)
     duration_s = round(traj.duration_s)
-    baro = make_barometer(spec, building, traj, seed)
+    baro = make_barometer(spec, building, traj, log_seed)
     with LogWriter(out, fmt) as writer:
-        counts = _write_log(writer, spec, building, traj, baro, start_ns, duration_s, seed, progress)
+        counts = _write_log(writer, spec, building, traj, baro, start_ns, duration_s, log_seed, progress)
     log_path = writer.path
     scan_rate = spec.lidar.rate_hz if spec.lidar else spec.laser.rate_hz  # type: ignore[union-attr]
     scan_times = np.arange(duration_s * scan_rate) / scan_rate
     paths = groundtruth.write_all(out, spec, building, traj, baro, start_ns, scan_times, seed)
+    if spec.session is not None:
+        paths["session"] = spec.session.write(out, scenario, seed, building, spec.start_floor, start_ns)
     plots: list[Path] = []
     if plot:
         from mfmap.sim.plot import plot_floorplans, plot_pressure

@@ -9,6 +9,7 @@ from mfmap.sim.building import Building, BuildingSpec, corridor_block, office_bl
 from mfmap.sim.camera import RgbdSpec
 from mfmap.sim.layout import FamilySpec, generate_building
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
+from mfmap.sim.sessions import Session, session_scenarios
 from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
 
@@ -39,12 +40,15 @@ class ScenarioSpec:
     # The building for a seed; None: the office block with n_floors storeys of floor_height_m.
     building: Callable[[int], BuildingSpec] | None = None
     camera: RgbdSpec | None = None  # an RGB-D camera beside the range sensor
+    # One of several logs of one building (mfmap.sim.sessions): its day, start pose and frame.
+    session: Session | None = None
 
 
 def building_for(spec: ScenarioSpec, seed: int) -> Building:
     """The scenario's building at this seed (its rooms and furniture are the seed's too)."""
     plan = spec.building(seed) if spec.building is not None else office_block(spec.n_floors, spec.floor_height_m)
-    return Building(plan, spec.start_floor, seed)
+    frame_floor = spec.session.frame_floor if spec.session is not None else spec.start_floor
+    return Building(plan, frame_floor, seed)
 
 
 def checkpoint_tour(b: RouteBuilder, stop_s: float = 5.0) -> None:
@@ -461,3 +465,5 @@ SCENARIOS: dict[str, ScenarioSpec] = {
         ),
     )
 }
+# Several logs of one building on different days.
+SCENARIOS.update({s.name: s for s in session_scenarios()})
