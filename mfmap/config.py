@@ -19,6 +19,7 @@ from mfmap.floors.config import FloorsConfig
 from mfmap.graph.config import GraphConfig
 from mfmap.ingest.camera_config import CameraConfig
 from mfmap.ingest.config import IngestConfig
+from mfmap.localize.config import LocalizeConfig
 from mfmap.mapping.config import MappingConfig
 
 __all__ = [
@@ -28,6 +29,7 @@ __all__ = [
     "FloorsConfig",
     "GraphConfig",
     "IngestConfig",
+    "LocalizeConfig",
     "MappingConfig",
     "MfmapConfig",
     "dump_config",
@@ -45,6 +47,7 @@ class MfmapConfig(BaseModel):
     graph: GraphConfig = Field(default_factory=GraphConfig)
     export: ExportConfig = Field(default_factory=ExportConfig)
     eval: EvalConfig = Field(default_factory=EvalConfig)
+    localize: LocalizeConfig = Field(default_factory=LocalizeConfig)
 
 
 def _describe(err: ValidationError) -> str:

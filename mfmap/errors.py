@@ -36,6 +36,10 @@ class OutputError(MfmapError):
     """An output folder that cannot be written or read (exists, interrupted build)."""
 
 
+class MapError(MfmapError):
+    """A map folder that `localize` cannot use (not a finished build, files missing or bad)."""
+
+
 class GroundTruthError(MfmapError):
     """A ground-truth file that is malformed or does not match the build."""
 
