@@ -293,6 +293,41 @@ def build(
         err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
 
 
+@app.command()
+def localize(
+    log: Annotated[Path, typer.Argument(help="The new log: MCAP file, ROS 1 bag or ROS 2 bag folder.")],
+    map_dir: Annotated[Path, typer.Option("--map", "-m", help="Output folder of mfmap build.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    initial_pose: Annotated[
+        tuple[float, float, float] | None,
+        typer.Option("--initial-pose", help="A hint: X Y YAW_DEG of the start in the map's frame."),
+    ] = None,
+    floor: Annotated[
+        int | None, typer.Option("--floor", help="A hint: the map floor the log starts on.")
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing output folder.")] = False,
+    threads: Annotated[
+        int, typer.Option("--threads", min=1, help="CPU threads (1 gives bit-identical output).")
+    ] = 1,
+    topic: TopicOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Place a new log of a mapped building in the map's frame: floor and pose at every scan."""
+    cfg = _load(config, topic)
+    limit_threads(threads)
+    from mfmap.localize import Hint, render_summary
+    from mfmap.localize import localize as run_localize
+
+    hint = None
+    if initial_pose is not None or floor is not None:
+        x, y, yaw = initial_pose if initial_pose is not None else (None, None, None)
+        hint = Hint(floor=floor, x_m=x, y_m=y, yaw_deg=yaw)
+    result = run_localize(log, map_dir, out, cfg, hint=hint, force=force, progress=RichProgress())
+    console.print(render_summary(result))
+    for warning in result.warnings:
+        err_console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
 @app.command("eval")
 def eval_cmd(
     out: Annotated[Path, typer.Argument(help="A build's output folder.")],
