@@ -16,6 +16,9 @@ A manifest is YAML. Paths in it are relative to the manifest file. Example::
       - name: lobby
         log: /data/lobby.mcap
         ground_truth: {points: /data/lobby_points.csv, floors: /data/lobby_floors.json}
+      - name: tiny-day2
+        simulate: {scenario: tiny-day2, seed: 0}
+        localize: {map_simulate: {scenario: tiny-day1, seed: 0}}
 
 Every model forbids unknown keys, so a typo is an error naming the manifest file and the key.
 """
@@ -47,6 +50,7 @@ DEFAULT_HIGHER_BETTER = [
     "*.fscore_*",
     "*.count_correct",
     "*.time_correct_share",
+    "*.localised_share",
 ]
 DEFAULT_LOWER_BETTER = ["*_miss*", "*_wrong*"]
 # Sizes of the inputs rather than qualities of the map: reported, not compared.
@@ -122,6 +126,26 @@ class Simulate(BaseModel):
     duration_scale: float = Field(1.0, gt=0.0, description="repeat the route to lengthen the log")
 
 
+class Localize(BaseModel):
+    """The log is localised (`mfmap localize`) in a map instead of built: the map is a
+    simulated log built first, a log built first, or a build's folder."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    map_simulate: Simulate | None = Field(None, description="the map's log, simulated")
+    map_log: Path | None = Field(None, description="the map's log (MCAP, ROS 1/2 bag)")
+    map_dir: Path | None = Field(None, description="a built map (mfmap build's output folder)")
+    foreign: bool = Field(
+        False, description="the log is of another building: every scan it poses is wrong"
+    )
+
+    @model_validator(mode="after")
+    def _one_map(self) -> Localize:
+        if sum(x is not None for x in (self.map_simulate, self.map_log, self.map_dir)) != 1:
+            raise ValueError("give exactly one of 'map_simulate', 'map_log' or 'map_dir'")
+        return self
+
+
 class GroundTruth(BaseModel):
     """Ground-truth files for `mfmap eval`; any may be absent."""
 
@@ -153,6 +177,7 @@ class LogEntry(BaseModel):
     name: str = Field(description="unique name; the key in the baseline")
     log: Path | None = Field(None, description="MCAP file, ROS 1 bag or ROS 2 bag folder")
     simulate: Simulate | None = Field(None, description="generate the log with the simulator")
+    localize: Localize | None = Field(None, description="localise the log in a map, not build it")
     ground_truth: GroundTruth = Field(default_factory=GroundTruth)
     skip_ground_truth: list[GroundTruthKind] = Field(
         default_factory=list,
@@ -277,6 +302,9 @@ def manifest_from_dict(data: Any, source: Path) -> Manifest:
     for entry in manifest.logs:
         entry.log = _resolve(base, entry.log)
         entry.config = _resolve(base, entry.config)
+        if entry.localize is not None:
+            entry.localize.map_log = _resolve(base, entry.localize.map_log)
+            entry.localize.map_dir = _resolve(base, entry.localize.map_dir)
         gt = entry.ground_truth
         gt.points = _resolve(base, gt.points)
         gt.cloud = _resolve(base, gt.cloud)
@@ -295,6 +323,10 @@ def check_files(manifest: Manifest) -> None:
             raise ManifestError(f"logs[{entry.name}].log not found: {entry.log}", source)
         if entry.config is not None and not entry.config.is_file():
             raise ManifestError(f"logs[{entry.name}].config not found: {entry.config}", source)
+        loc = entry.localize
+        for key, given in (("map_log", loc.map_log), ("map_dir", loc.map_dir)) if loc else ():
+            if given is not None and not given.exists():
+                raise ManifestError(f"logs[{entry.name}].localize.{key} not found: {given}", source)
         for key, path in entry.ground_truth.model_dump().items():
             if path is not None and not Path(path).exists():
                 raise ManifestError(

@@ -42,6 +42,7 @@ class LogJob:
     sim_cache: str | None = None
     ground_truth: dict[str, str | None] = field(default_factory=dict)
     skip_ground_truth: tuple[str, ...] = ()
+    localize: dict[str, Any] | None = None  # Localize fields: localise in a map, not build
     num_cpus: float = 1.0
     memory_gb: float = 2.0
 

@@ -107,6 +107,7 @@ def make_jobs(manifest: Manifest, out_dir: Path) -> list[LogJob]:
                 sim_cache=str(manifest.sim_cache_dir().resolve()),
                 ground_truth=gt,
                 skip_ground_truth=tuple(entry.skip_ground_truth),
+                localize=entry.localize.model_dump(mode="json") if entry.localize is not None else None,
                 num_cpus=res.num_cpus,
                 memory_gb=res.memory_gb,
             )
@@ -244,6 +245,17 @@ def run_job(job: LogJob, reraise: bool = False) -> LogOutcome:
         from mfmap.config import MfmapConfig
 
         config = MfmapConfig.model_validate(job.config)
+        if job.localize is not None:
+            from pipelines.regress.localize import localize_job
+
+            steps: list[str] = []
+            try:
+                metrics = localize_job(job, Path(log), gt, config, steps.append)
+            finally:
+                stage = steps[-1] if steps else stage
+            return LogOutcome(name=job.name, ok=True, metrics=metrics,
+                              wall_s=time.perf_counter() - start, out_dir=job.out_dir, log=log,
+                              machine=machine_fingerprint())
         out = Path(job.out_dir) / "build"
         stage = "build"
         from mfmap.pipeline import build

@@ -102,6 +102,21 @@ def test_missing_log_file_is_named(write_manifest: Callable[..., Path], tmp_path
         load_manifest(path)
 
 
+def test_localize_entry_names_one_map(write_manifest: Callable[..., Path], tmp_path: Path) -> None:
+    entry = {"name": "day2", "simulate": {"scenario": "tiny-day2"},
+             "localize": {"map_simulate": {"scenario": "tiny-day1"}}}
+    m = load_manifest(write_manifest(_minimal(logs=[entry])))
+    jobs = make_jobs(m, tmp_path / "out")
+    assert jobs[0].localize is not None
+    assert jobs[0].localize["map_simulate"]["scenario"] == "tiny-day1"
+    both = {**entry, "localize": {"map_simulate": {"scenario": "tiny-day1"}, "map_dir": "maps/a"}}
+    with pytest.raises(ManifestError, match="exactly one of 'map_simulate', 'map_log' or 'map_dir'"):
+        load_manifest(write_manifest(_minimal(logs=[both])))
+    missing = {**entry, "localize": {"map_dir": "maps/none"}}
+    with pytest.raises(ManifestError, match=r"logs\[day2\]\.localize\.map_dir not found"):
+        load_manifest(write_manifest(_minimal(logs=[missing])))
+
+
 def test_not_a_mapping_and_not_yaml(tmp_path: Path) -> None:
     bad = tmp_path / "list.yaml"
     bad.write_text("- 1\n- 2\n")
@@ -191,7 +206,8 @@ def test_sim_folder_matches_the_test_fixture_layout(write_manifest: Callable[...
     assert sim_folder(Path("/c"), scaled) == Path("/c/tiny-mcap-4-duration_scale=2.0")
 
 
-@pytest.mark.parametrize("name", ["sim_quick.yaml", "sim_full.yaml", "sim_seeds.yaml", "stress.yaml"])
+@pytest.mark.parametrize("name", ["sim_quick.yaml", "sim_full.yaml", "sim_seeds.yaml", "stress.yaml",
+                                  "localize.yaml"])
 def test_shipped_manifests_load(name: str) -> None:
     from mfmap.sim import SCENARIOS
 
