@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -339,7 +339,10 @@ def corridor_block(n_floors: int, floor_height_m: float) -> BuildingSpec:
         fixtures.append(Box((x0, -1.0, 1.0), (x1, -0.65, 1.3), Kind.FURNITURE))
     return BuildingSpec(
         name="corridor-block", footprint=base.footprint, storey_heights_m=base.storey_heights_m,
-        blocks=blocks, shaft=base.shaft, stairwell=base.stairwell, pillars=(),
+        # The robot waits for the cabin 0.5 m into the corridor, not the office block's 0.6 m:
+        # the corridor's south wall is 0.94 m from its centre, and the robot needs 0.35 m.
+        blocks=blocks, shaft=replace(base.shaft, front=(base.shaft.front[0], -0.5)),
+        stairwell=base.stairwell, pillars=(),
         extra_walls=base.extra_walls, fixtures=tuple(fixtures),
     )
 
