@@ -13,7 +13,7 @@ from mfmap.sim.sessions import Session, session_scenarios
 from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
 
-# Checkpoints of the manual-driving experiment in seeds/000 (Table I), world frame.
+# Checkpoints of the LeGO-LOAM elevator paper's manual-driving experiment (Table I), world frame.
 P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
 W_NORTH, W_SOUTH = (-2.75, -1.0), (-2.75, -12.0)
 C1, C2 = (1.5, 0.0), (11.5, 0.0)  # the ends of the walk along the corridor building's corridor
@@ -329,14 +329,15 @@ SCENARIOS: dict[str, ScenarioSpec] = {
         ),
         ScenarioSpec(
             "two-floor",
-            "seeds/000 experiment: P1..P4 on two floors 4.7 m apart, elevator, ~4 min",
+            "the LeGO-LOAM elevator paper's experiment: P1..P4 on two floors 4.7 m apart, "
+            "elevator, ~4 min",
             2,
             4.7,
             _two_floor,
         ),
         ScenarioSpec(
             "two-floor-2d",
-            "two-floor with a 2D LaserScan (360 deg, 15 Hz, as seeds/001) instead of the 3D lidar",
+            "two-floor with a 2D LaserScan (360 deg, 15 Hz, as Fan et al.'s) instead of the 3D lidar",
             2,
             4.7,
             _two_floor,

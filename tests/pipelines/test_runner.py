@@ -158,7 +158,7 @@ def test_worse_config_fails_naming_the_metric(tmp_path: Path) -> None:
     """Inter-floor registration, elevator continuity and the cabin filter off: nothing but the
     odometry across the ride places floor 1 over floor 0, and the cabin's walls pull it, so the
     upper floor's error is what regresses (measured: 7.5 -> 38.5 mm; with the cabin filter on,
-    11.5 mm, within the tolerance since the sixth session's finer odometry)."""
+    11.5 mm, within the tolerance)."""
     data = yaml.safe_load(QUICK.read_text())
     data["baseline"] = str(QUICK_BASELINE)
     data["logs"] = [e for e in data["logs"] if e["name"] == "tiny"]
