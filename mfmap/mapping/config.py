@@ -96,10 +96,9 @@ class MappingConfig(BaseModel):
         0.0, ge=0.0,
         description="a speed knob, off by default: while the wheel odometry and the gyro say the "
         "robot has not moved since the last registered scan (under 5 mm and 0.05 degrees), scans "
-        "take that pose instead of being registered again, for up to this long (0: off). At 2 s, "
-        "two-floor registered 19 percent fewer scans, but a stand-still then carries one "
-        "registration's error instead of the median of many: two-floor's checkpoints 32.0 -> 33.4 "
-        "mm summed, two-floor-2d's 21.3 -> 28.2",
+        "take that pose instead of being registered again, for up to this long (0: off). At 2 s "
+        "about a fifth fewer scans are registered, but a stand-still then carries one "
+        "registration's error instead of the median of many (a few mm more per checkpoint)",
     )
     turn_hold_m: float = Field(
         0.01, ge=0.0,
@@ -107,9 +106,7 @@ class MappingConfig(BaseModel):
         "the robot stopped, a registration that the gyro says turned more than a degree keeps "
         "the median x, y of the stand-still's registrations and takes only its rotation and "
         "height (0: off; not on stair walks). Registered freely, the scans "
-        "drift 1-2 cm per 100 degrees of turn: the checkpoint after an elevator ride, where the "
-        "robot turns out of the cabin, was 2.7-3.6 cm off in x (two-floor seed 0, "
-        "three-floor-revisit seed 1), now 0.1-1.3 cm",
+        "drift 1-2 cm per 100 degrees of turn, as where the robot turns out of an elevator cabin",
     )
     local_map_keyframes: int = Field(30, ge=1, le=10_000, description="keyframes in the sliding local map")
     local_map_radius_m: float = Field(30.0, gt=0.0, le=10_000.0, description="local map keeps keyframes within this")
@@ -168,8 +165,7 @@ class MappingConfig(BaseModel):
         1.0, ge=0.0,
         description="a loop's sigmas grow by this factor per metre between its keyframes: "
         "verified loops 2-5 m apart are off by 1.6-2.4 cm RMS (1.0 cm within 1 m), and the "
-        "neighbours of one such loop share its error (per-visit RMSE after loops on seeds 0-2, "
-        "worst visits: 4.9 -> 4.3 cm on stairs, 5.2 -> 4.2 cm on three-floor-revisit)",
+        "neighbours of one such loop share its error",
     )
     level_window_s: float = Field(
         10.0, le=3600.0, ge=0.0,
@@ -193,8 +189,9 @@ class MappingConfig(BaseModel):
     split_at_stairs: bool = Field(
         False,
         description="a speed knob, off by default: with workers > 1 the runs are also split at "
-        "each stair walk's end, so a log without elevator rides maps in parallel too (stairs: "
-        "mapping 19.6 -> 11.9 s); its results then differ from one pass's as after a ride",
+        "each stair walk's end, so a log without elevator rides maps in parallel too (about 40 % "
+        "less mapping time on the stairs scenario); its results then differ from one pass's as "
+        "after a ride",
     )
 
     @model_validator(mode="after")
