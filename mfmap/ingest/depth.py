@@ -326,15 +326,25 @@ def find_cameras(src: LogSource, config: CameraConfig) -> tuple[list[Camera], li
     return cameras, warnings
 
 
+_KNOWN_ENCODINGS = {"depth": f"{', '.join(DEPTH_ENCODINGS)}, compressedDepth",
+                    "colour": f"{', '.join(COLOUR_ENCODINGS)}, jpeg, png"}
+
+
+def _first_image(src: LogSource, topic: str, types: dict[str, str], kind: str, where: str) -> Any:
+    """The topic's first image, when the topic holds images of `kind` ("depth" or "colour")."""
+    if topic not in types or types[topic] not in (IMAGE, COMPRESSED):
+        raise CameraProblem(f"{where}: no sensor_msgs/Image or CompressedImage messages")
+    first = _first(src, topic)
+    if first is None or image_kind(first, types[topic]) != kind:
+        enc = getattr(first, "encoding", getattr(first, "format", "?"))
+        raise CameraProblem(f"{where}: encoding '{enc}' is not a {kind} encoding "
+                            f"({_KNOWN_ENCODINGS[kind]})")
+    return first
+
+
 def _camera(src: LogSource, topics: CameraTopics, types: dict[str, str], infos: list[str]) -> Camera:
     where = f"{src.path} topic {topics.depth}"
-    if topics.depth not in types or types[topics.depth] not in (IMAGE, COMPRESSED):
-        raise CameraProblem(f"{where}: no sensor_msgs/Image or CompressedImage messages")
-    first = _first(src, topics.depth)
-    if first is None or image_kind(first, types[topics.depth]) != "depth":
-        enc = getattr(first, "encoding", getattr(first, "format", "?"))
-        raise CameraProblem(f"{where}: encoding '{enc}' is not a depth encoding "
-                            f"({', '.join(DEPTH_ENCODINGS)}, compressedDepth)")
+    first = _first_image(src, topics.depth, types, "depth", where)
     model = _model(src, topics.depth, topics.info, infos, where)
     extr = src.extrinsics()
     frame = model.frame_id or str(first.header.frame_id).lstrip("/")
@@ -345,13 +355,7 @@ def _camera(src: LogSource, topics: CameraTopics, types: dict[str, str], infos: 
     if not topics.colour:
         return Camera(topics.depth, model.frame_id, model, to_base)
     cwhere = f"{src.path} topic {topics.colour}"
-    if topics.colour not in types or types[topics.colour] not in (IMAGE, COMPRESSED):
-        raise CameraProblem(f"{cwhere}: no sensor_msgs/Image or CompressedImage messages")
-    cfirst = _first(src, topics.colour)
-    if cfirst is None or image_kind(cfirst, types[topics.colour]) != "colour":
-        enc = getattr(cfirst, "encoding", getattr(cfirst, "format", "?"))
-        raise CameraProblem(f"{cwhere}: encoding '{enc}' is not a colour encoding "
-                            f"({', '.join(COLOUR_ENCODINGS)}, jpeg, png)")
+    cfirst = _first_image(src, topics.colour, types, "colour", cwhere)
     cframe = str(cfirst.header.frame_id).lstrip("/") or frame
     try:
         cmodel = _model(src, topics.colour, topics.colour_info, infos, cwhere)
