@@ -234,13 +234,13 @@ def test_ros1_reader_equals_rosbags(written_log: Callable[[str], Path], compress
 
 
 def _small_rows(path: Path, direct: bool, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
-    import mfmap.ingest.source as source
+    import mfmap.ingest.series as series
 
     with monkeypatch.context() as m:
         if not direct:
-            m.setattr(source, "_FLAT", {})
+            m.setattr(series, "_FLAT", {})
         with open_log(path, IngestConfig()) as src:
-            rows = src._small_streams()
+            rows = src._series.read()
             return {role.name: (r.stamps, r.values, r.frame, r.child) for role, r in rows.items()}
 
 
@@ -250,18 +250,18 @@ def test_direct_small_message_parser_equals_generic(
 ) -> None:
     """Barometer, IMU and odometry read by the direct parser: every stamp, value and frame the
     generic deserialiser gives, in every format and encoding the writers produce."""
-    import mfmap.ingest.source as source
+    import mfmap.ingest.series as series
 
     path = written_log(fmt)
     calls = 0
-    parse = source.parse_stamped_doubles
+    parse = series.parse_stamped_doubles
 
     def counting(*args: Any) -> Any:
         nonlocal calls
         calls += 1
         return parse(*args)
 
-    monkeypatch.setattr(source, "parse_stamped_doubles", counting)
+    monkeypatch.setattr(series, "parse_stamped_doubles", counting)
     direct = _small_rows(path, True, monkeypatch)
     # Every message once, and each topic's first once more (checked against the generic one).
     assert calls == lw.BARO_N + lw.IMU_N + lw.ODOM_N + 3
