@@ -44,8 +44,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from mfmap.errors import MfmapError
 from mfmap.ingest import open_log
 from mfmap.ingest.config import IngestConfig
-from mfmap.ingest.decode import cloud_layout, parse_pointcloud2, quat_to_matrix
+from mfmap.ingest.decode import cloud_layout, quat_to_matrix
 from mfmap.ingest.lidartime import TimeSpec
+from mfmap.ingest.wire import parse_pointcloud2
 from mfmap.types import Role
 
 LAYOUTS = ("ouster", "velodyne", "hesai", "robosense", "livox", "livox-custom", "notime",

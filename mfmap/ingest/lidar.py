@@ -18,7 +18,6 @@ from mfmap.ingest.decode import (
     Timing,
     cloud_of,
     decode_points,
-    parse_pointcloud2,
     pointcloud2_layout,
 )
 from mfmap.ingest.lidartime import (
@@ -38,6 +37,7 @@ from mfmap.ingest.pointmsg import (
     stamp_ns_of_scalars,
 )
 from mfmap.ingest.timecheck import StampGuard
+from mfmap.ingest.wire import parse_pointcloud2
 from mfmap.types import Cloud, Role
 
 # Scans sampled to decide how a lidar's per-point time reads.

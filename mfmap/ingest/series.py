@@ -16,10 +16,11 @@ import numpy as np
 from mfmap.errors import DecodeError, MfmapError, MissingDataError
 from mfmap.ingest.backend import RawMessage
 from mfmap.ingest.core import LogCore
-from mfmap.ingest.decode import PressureUnit, parse_stamped_doubles, pressure_unit, stamp_ns_of
+from mfmap.ingest.decode import PressureUnit, pressure_unit, stamp_ns_of
 from mfmap.ingest.roles import ROLE_TYPE
 from mfmap.ingest.tfread import TfStore
 from mfmap.ingest.timecheck import series_order
+from mfmap.ingest.wire import parse_stamped_doubles
 from mfmap.types import ImuSeries, OdomSeries, PressureSeries, Role, TemperatureSeries
 
 SMALL_ROLES = (Role.BARO, Role.IMU, Role.ODOM)

@@ -18,7 +18,7 @@ from typing import Any
 from mfmap.ingest.backend import Backend
 from mfmap.ingest.config import IngestConfig
 from mfmap.ingest.core import LogCore, Record
-from mfmap.ingest.decode import Timing, parse_pointcloud2
+from mfmap.ingest.decode import Timing
 from mfmap.ingest.frames import Frames
 from mfmap.ingest.laserscan import LaserScanReader
 from mfmap.ingest.lidar import LidarReader, point_frame
@@ -28,6 +28,7 @@ from mfmap.ingest.pointmsg import POINT_MESSAGE_TYPES
 from mfmap.ingest.sensors import sensor_table
 from mfmap.ingest.series import SMALL_ROLES, SeriesReader
 from mfmap.ingest.tfread import TfStore
+from mfmap.ingest.wire import parse_pointcloud2
 from mfmap.types import (
     Cloud,
     Extrinsics,

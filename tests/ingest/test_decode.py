@@ -224,7 +224,7 @@ def test_pressure_unit_by_magnitude(median: float, unit: str | None) -> None:
 def test_direct_pointcloud2_parser_matches_rosbags(wire: str) -> None:
     import ingest_logwriter as lw
 
-    from mfmap.ingest.decode import parse_pointcloud2
+    from mfmap.ingest.wire import parse_pointcloud2
 
     ros1 = wire == "ros1"
     store = lw.typestore(ros1)

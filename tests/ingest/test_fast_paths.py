@@ -23,9 +23,10 @@ from mcap.reader import SeekingReader
 from mfmap.errors import DecodeError
 from mfmap.ingest import open_log
 from mfmap.ingest.config import IngestConfig
-from mfmap.ingest.decode import POINTFIELD_DTYPES, decode_pointcloud2, parse_pointcloud2
+from mfmap.ingest.decode import POINTFIELD_DTYPES, decode_pointcloud2
 from mfmap.ingest.lidartime import TimeSpec
 from mfmap.ingest.mcap_backend import McapBackend
+from mfmap.ingest.wire import parse_pointcloud2
 
 STAMP_NS = 1_700_000_000_250_000_000
 DATATYPE = {code: dt for dt, code in POINTFIELD_DTYPES.items()}
@@ -275,7 +276,7 @@ def test_direct_small_message_parser_reports_a_cut_message() -> None:
     topic); the doubles of a whole one come out at their CDR alignment."""
     import struct
 
-    from mfmap.ingest.decode import parse_stamped_doubles
+    from mfmap.ingest.wire import parse_stamped_doubles
 
     frame = b"imu_link\x00"  # 9 bytes: the doubles start at the next multiple of 8 after it
     head = b"\x00\x01\x00\x00" + struct.pack("<iI", 12, 500) + struct.pack("<I", len(frame)) + frame

@@ -22,7 +22,8 @@ from hypothesis import strategies as st
 
 from mfmap.errors import MfmapError
 from mfmap.ingest import open_log
-from mfmap.ingest.decode import decode_laserscan, decode_pointcloud2, parse_pointcloud2
+from mfmap.ingest.decode import decode_laserscan, decode_pointcloud2
+from mfmap.ingest.wire import parse_pointcloud2
 from mfmap.types import Cloud, Role
 
 
