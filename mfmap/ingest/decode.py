@@ -90,6 +90,34 @@ def cloud_layout(
     as candidates for a point's time.
     """
     order = ">" if is_bigendian else "<"
+    _check_sizes(height, width, point_step, row_step, data_len, where, max_bytes)
+    names, formats, offsets = _wanted_fields(fields, point_step, order, time_fields, where)
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": max(point_step, 1)}
+    )
+    listed = tuple(
+        (str(f.name), int(f.offset), np.dtype(POINTFIELD_DTYPES[int(f.datatype)]).name
+         if int(f.datatype) in POINTFIELD_DTYPES else "?", int(f.count))
+        for f in fields
+    )
+    return CloudLayout(
+        dtype=dtype,
+        span=_span_dtype(names, formats, offsets),
+        span_offset=min(offsets),
+        height=height,
+        width=width,
+        point_step=point_step,
+        row_step=row_step,
+        time_fields=tuple(n for n in time_fields if n in names and n not in ("x", "y", "z")),
+        has_intensity="intensity" in names,
+        has_ring="ring" in names,
+        fields=listed,
+    )
+
+
+def _check_sizes(height: int, width: int, point_step: int, row_step: int, data_len: int,
+                 where: str, max_bytes: int) -> None:
+    """A PointCloud2's sizes, checked against each other, the limit and its data's length."""
     if height < 0 or width < 0 or point_step < 0 or row_step < 0:
         raise DecodeError("PointCloud2 with negative sizes", where)
     claimed = height * width * point_step
@@ -117,6 +145,11 @@ def cloud_layout(
             f"{width}*{height}*{point_step} (row_step {row_step}) needs {row_step * height}",
             where,
         )
+
+
+def _wanted_fields(fields: list[Any], point_step: int, order: str, time_fields: tuple[str, ...],
+                   where: str) -> tuple[list[str], list[str], list[int]]:
+    """(names, numpy formats, offsets) of the fields the decoder reads, in the order wanted."""
     by_name: dict[str, Any] = {}
     for f in fields:
         by_name.setdefault(str(f.name), f)
@@ -145,27 +178,7 @@ def cloud_layout(
         names.append(name)
         formats.append(order + code)
         offsets.append(int(f.offset))
-    dtype = np.dtype(
-        {"names": names, "formats": formats, "offsets": offsets, "itemsize": max(point_step, 1)}
-    )
-    listed = tuple(
-        (str(f.name), int(f.offset), np.dtype(POINTFIELD_DTYPES[int(f.datatype)]).name
-         if int(f.datatype) in POINTFIELD_DTYPES else "?", int(f.count))
-        for f in fields
-    )
-    return CloudLayout(
-        dtype=dtype,
-        span=_span_dtype(names, formats, offsets),
-        span_offset=min(offsets),
-        height=height,
-        width=width,
-        point_step=point_step,
-        row_step=row_step,
-        time_fields=tuple(n for n in time_fields if n in names and n not in ("x", "y", "z")),
-        has_intensity="intensity" in names,
-        has_ring="ring" in names,
-        fields=listed,
-    )
+    return names, formats, offsets
 
 
 def _span_dtype(names: list[str], formats: list[str], offsets: list[int]) -> np.dtype[Any]:
