@@ -72,6 +72,16 @@ def _first_line(err: BaseException) -> str:
 
 
 def _scan_db(db: Path, max_id_hint: int | None) -> _DbScan:
+    con, topics, definitions = _open_db(db)
+    found: list[tuple[int, int, int]] = []
+    damage = _walk_messages(con, max_id_hint, found, cut_short(db))
+    found, damage = _drop_partial_tail(db, con, found, damage)
+    arr = np.array(found, dtype=np.int64).reshape(-1, 3)
+    return _DbScan(db, con, topics, definitions, arr[:, 0].copy(), arr[:, 1].copy(), arr[:, 2].copy(), damage)
+
+
+def _open_db(db: Path) -> tuple[sqlite3.Connection, dict[int, _Topic], dict[str, str]]:
+    """The open database, its topics by id and the message definitions it holds."""
     if not db.is_file():
         raise LogError("bag file listed in metadata.yaml is missing", db)
     con = connect(db)
@@ -93,8 +103,13 @@ def _scan_db(db: Path, max_id_hint: int | None) -> _DbScan:
                 definitions[normalise_msgtype(str(msgtype))] = str(text)
     except sqlite3.Error:
         pass  # bags before rosbag2 Iron have no definitions; damaged ones fall back the same way
-    found: list[tuple[int, int, int]] = []
-    damage = cut_short(db)
+    return con, topics, definitions
+
+
+def _walk_messages(con: sqlite3.Connection, max_id_hint: int | None,
+                   found: list[tuple[int, int, int]], damage: str | None) -> str | None:
+    """Append (id, topic id, time) of every readable message to `found`, in id order, stepping
+    over damaged stretches; return the damage seen (the first kind), or `damage`."""
     last_id = 0
     # substr(data, -1) makes SQLite follow the whole overflow chain of the data, so a row
     # whose data lost a page counts as damaged here, not when it is served.
@@ -128,6 +143,12 @@ def _scan_db(db: Path, max_id_hint: int | None) -> _DbScan:
             break
         found.append((int(hit[0]), int(hit[1]), int(hit[2])))
         last_id = int(hit[0])
+    return damage
+
+
+def _drop_partial_tail(db: Path, con: sqlite3.Connection, found: list[tuple[int, int, int]],
+                       damage: str | None) -> tuple[list[tuple[int, int, int]], str | None]:
+    """`found` less the rows the page the file ends inside held, and the damage seen."""
     tail = _partial_tail(db, con)
     if tail is not None:
         damage = damage or "the file ends inside a page"
@@ -138,8 +159,7 @@ def _scan_db(db: Path, max_id_hint: int | None) -> _DbScan:
             # Not a page of the messages table: taken as an overflow page of the last message
             # written (rosbag2 only appends, so the last page belongs to the last row).
             found.pop(max(range(len(found)), key=lambda k: found[k][0]))
-    arr = np.array(found, dtype=np.int64).reshape(-1, 3)
-    return _DbScan(db, con, topics, definitions, arr[:, 0].copy(), arr[:, 1].copy(), arr[:, 2].copy(), damage)
+    return found, damage
 
 
 def cut_short(db: Path) -> str | None:
