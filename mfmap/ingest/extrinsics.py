@@ -15,14 +15,12 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mfmap.ingest.config import ExtrinsicConfig
-
-F64 = np.ndarray[Any, np.dtype[np.float64]]
+from mfmap.types import F64
 
 # A transform on /tf that moves less than this over the log is static.
 STATIC_M = 1e-6

@@ -22,12 +22,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from mfmap.errors import DecodeError
 from mfmap.ingest.config import LidarTimeConfig
-
-I64 = npt.NDArray[np.int64]
+from mfmap.types import I64
 
 UNIT_NS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 # Field names drivers use for a point's time (Ouster `t`, Velodyne `time`, Hesai/Robosense/Livox

@@ -25,8 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mfmap.ingest.decode import decode_laserscan
-
-F64 = np.ndarray[Any, np.dtype[np.float64]]
+from mfmap.types import F64
 
 MIN_TURN_RAD_S = 0.25  # scans taken turning at least this fast carry the evidence
 MAX_PAIRS = 16

@@ -21,8 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.ingest.backend import RawMessage
+from mfmap.types import I64
 
-I64 = npt.NDArray[np.int64]
 Mask = npt.NDArray[np.bool_]
 
 # Steps back this small are a recorder's jitter, left to the readers' sorting.
