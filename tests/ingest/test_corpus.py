@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-import mfmap.ingest.series as series
+import mfmap.ingest.series as ingest_series
 from mfmap.errors import DecodeError, MfmapError
 from mfmap.ingest import open_log
 from mfmap.ingest.config import IngestConfig
@@ -77,16 +77,16 @@ def expected_counts(item: Path) -> Counter[str] | None:
 
 def _small(item: Path, flat: dict[Role, Any]) -> dict[Role, tuple[list[int], list[tuple[float, ...]]]]:
     """The small streams' stamps and rows, read with the direct parser's table `flat`."""
-    saved = dict(series._FLAT)
-    series._FLAT.clear()
-    series._FLAT.update(flat)
+    saved = dict(ingest_series._FLAT)
+    ingest_series._FLAT.clear()
+    ingest_series._FLAT.update(flat)
     try:
         with open_log(item) as src:
             return {role: (rows.stamps, rows.values) for role, rows in src._series.read().items()
                     if role != Role.TF_STATIC}
     finally:
-        series._FLAT.clear()
-        series._FLAT.update(saved)
+        ingest_series._FLAT.clear()
+        ingest_series._FLAT.update(saved)
 
 
 class Hang(Exception):
@@ -128,7 +128,7 @@ def walk(root: Path) -> Walk:
                         out.series_read += 0 if series is None else len(series)
                     if {Role.BARO, Role.IMU, Role.ODOM} & set(src.roles):
                         # The direct parser of the small streams against the generic one.
-                        direct = _small(item, series._FLAT)
+                        direct = _small(item, ingest_series._FLAT)
                         if direct != _small(item, {}):
                             out.mismatched[name] = "small streams: direct parser differs from rosbags"
                         out.small_checked += sum(len(stamps) for stamps, _ in direct.values())
