@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import open3d as o3d
@@ -209,58 +210,12 @@ def register_floors(
     reg = o3d.pipelines.registration
     target = _cloud(lower_points, voxel_m)
     source = _cloud(upper_points, voxel_m)
-    feature_param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel_m * 5.0, max_nn=50)
-    source_fpfh = reg.compute_fpfh_feature(source, feature_param)  # type: ignore[call-arg]
-    target_fpfh = reg.compute_fpfh_feature(target, feature_param)  # type: ignore[call-arg]
-    ransac = reg.registration_ransac_based_on_feature_matching(
-        source,
-        target,
-        source_fpfh,
-        target_fpfh,
-        True,
-        voxel_m * 1.5,
-        reg.TransformationEstimationPointToPoint(False),
-        3,
-        [
-            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-            reg.CorrespondenceCheckerBasedOnDistance(voxel_m * 1.5),
-        ],
-        reg.RANSACConvergenceCriteria(20000, 0.999),
-    )
-    # Starts: the global (RANSAC) guess, the prior (identity: the elevator hold), and the prior
-    # shifted and turned a little, so a floor that slides along itself (a corridor, a row of
-    # pillars) shows itself as a second, distinct solution that fits as well.
-    starts = [np.eye(4), project_xyyaw(np.asarray(ransac.transformation))]
-    starts += [_yaw_about(np.zeros(2), math.radians(5.0)), _yaw_about(np.zeros(2), math.radians(-5.0))]
-    for dx, dy in ((0.5, 0.0), (0.0, 0.5), (-0.5, 0.0), (0.0, -0.5)):
-        shifted = np.eye(4)
-        shifted[:2, 3] = (dx, dy)
-        starts.append(shifted)
+    starts = _starts(_global_guess(source, target, voxel_m))
     coarse = _Target(target.voxel_down_sample(voxel_m * 2.0))
     fine = _Target(target)
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
     fine_source = np.asarray(source.points)
-    candidates: list[_Candidate] = []
-    refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
-    # Every start goes through the coarse passes, and the prior once more without them: on floors
-    # that share little the coarse passes can pull every start into one valley beside the true
-    # one (stairs seed 2's floors 1-2: all nine met 10 cm off, where the fine pass alone from the
-    # prior stays within 2 cm).
-    for start, with_coarse in [(at, True) for at in starts] + [(np.eye(4), False)]:
-        current = start
-        if with_coarse:
-            for radius in (voxel_m * 5.0, voxel_m * 2.5):
-                current = coarse.icp(coarse_source, current, radius)
-        # Starts usually meet in the coarse passes: the fine pass and the score once per place.
-        done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
-        if done is None:
-            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
-            best = project_xyyaw(pose)
-            score = reg.evaluate_registration(source, target, voxel_m, best)
-            sharp = reg.evaluate_registration(source, target, voxel_m / 2.0, best)
-            done = _Candidate(float(score.fitness), float(sharp.fitness), best, pose)
-            refined.append((current, done))
-        candidates.append(done)
+    candidates = _refine_starts(starts, coarse, fine, coarse_source, fine_source, source, target, voxel_m)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
     # rectangular building fits its outer walls but is not a plausible error of the elevator hold.
     plausible = [c for c in candidates if _plausible(c.correction, max_correction_m, max_correction_deg)]
@@ -291,3 +246,76 @@ def register_floors(
         accepted, reason = False, f"ambiguous: a distinct solution scores {runner_up:.2f} vs {best_fitness:.2f}"
     logger.debug("floors %d/%d: fitness %.3f runner-up %.3f %s", lower, upper, best_fitness, runner_up, reason)
     return FloorMatch(lower, upper, best, best_fitness, best_rmse, runner_up, accepted, reason)
+
+
+def _global_guess(source: Any, target: Any, voxel_m: float) -> F64:
+    """The upper floor's pose on the lower one by FPFH features and RANSAC, with no prior."""
+    reg = o3d.pipelines.registration
+    feature_param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel_m * 5.0, max_nn=50)
+    source_fpfh = reg.compute_fpfh_feature(source, feature_param)  # type: ignore[call-arg]
+    target_fpfh = reg.compute_fpfh_feature(target, feature_param)  # type: ignore[call-arg]
+    ransac = reg.registration_ransac_based_on_feature_matching(
+        source,
+        target,
+        source_fpfh,
+        target_fpfh,
+        True,
+        voxel_m * 1.5,
+        reg.TransformationEstimationPointToPoint(False),
+        3,
+        [
+            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+            reg.CorrespondenceCheckerBasedOnDistance(voxel_m * 1.5),
+        ],
+        reg.RANSACConvergenceCriteria(20000, 0.999),
+    )
+    return np.asarray(ransac.transformation)
+
+
+def _starts(global_guess: F64) -> list[F64]:
+    """Starts: the global (RANSAC) guess, the prior (identity: the elevator hold), and the prior
+    shifted and turned a little, so a floor that slides along itself (a corridor, a row of
+    pillars) shows itself as a second, distinct solution that fits as well."""
+    starts = [np.eye(4), project_xyyaw(global_guess)]
+    starts += [_yaw_about(np.zeros(2), math.radians(5.0)), _yaw_about(np.zeros(2), math.radians(-5.0))]
+    for dx, dy in ((0.5, 0.0), (0.0, 0.5), (-0.5, 0.0), (0.0, -0.5)):
+        shifted = np.eye(4)
+        shifted[:2, 3] = (dx, dy)
+        starts.append(shifted)
+    return starts
+
+
+def _refine_starts(
+    starts: list[F64],
+    coarse: _Target,
+    fine: _Target,
+    coarse_source: np.ndarray,
+    fine_source: np.ndarray,
+    source: Any,
+    target: Any,
+    voxel_m: float,
+) -> list[_Candidate]:
+    """Each start through the coarse passes and the fine pass, scored; one candidate per start."""
+    reg = o3d.pipelines.registration
+    candidates: list[_Candidate] = []
+    refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
+    # Every start goes through the coarse passes, and the prior once more without them: on floors
+    # that share little the coarse passes can pull every start into one valley beside the true
+    # one (stairs seed 2's floors 1-2: all nine met 10 cm off, where the fine pass alone from the
+    # prior stays within 2 cm).
+    for start, with_coarse in [(at, True) for at in starts] + [(np.eye(4), False)]:
+        current = start
+        if with_coarse:
+            for radius in (voxel_m * 5.0, voxel_m * 2.5):
+                current = coarse.icp(coarse_source, current, radius)
+        # Starts usually meet in the coarse passes: the fine pass and the score once per place.
+        done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
+        if done is None:
+            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
+            best = project_xyyaw(pose)
+            score = reg.evaluate_registration(source, target, voxel_m, best)
+            sharp = reg.evaluate_registration(source, target, voxel_m / 2.0, best)
+            done = _Candidate(float(score.fitness), float(sharp.fitness), best, pose)
+            refined.append((current, done))
+        candidates.append(done)
+    return candidates
