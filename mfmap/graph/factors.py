@@ -46,7 +46,8 @@ def Fl(floor: int) -> int:
 
 # gtsam.BarometricFactor(x, f, p) has error z_x + f - height(p). At the pressure whose height is
 # zero, with f holding minus a floor's level, it is z_x - level: a world-z tie between a keyframe
-# and its floor, in C++. Python CustomFactors for the ties cost 10 s of graph time on `long`.
+# and its floor, in C++. Python CustomFactors for the ties would cost 10 s of graph time on the
+# simulator's `long` log.
 LEVEL_KPA = float(gtsam.BarometricFactor().baroOut(0.0))
 
 

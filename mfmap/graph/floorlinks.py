@@ -83,10 +83,11 @@ def add_height_ties(
     """Every keyframe of a floor shares that floor's z: a floor level f<id> tied to each.
 
     A star, not a chain, so the tie does not let z wander from keyframe to keyframe. Each tie is
-    a world-z factor (robust; LEVEL_KPA). A BetweenFactorPose3 with only z tight, as before,
-    measured z in the floor variable's frame, through SE(3)'s log that mixes rotation into
-    translation: a keyframe's tilt times its distance from the floor variable (tens of metres)
-    became centimetres of height, and put tiny-2d's keyframes 6 cm off their floor's level.
+    a world-z factor (robust; LEVEL_KPA). A BetweenFactorPose3 with only z tight would measure z
+    in the floor variable's frame, through SE(3)'s log that mixes rotation into translation: a
+    keyframe's tilt times its distance from the floor variable (tens of metres) becomes
+    centimetres of height (6 cm off their floor's level for the keyframes of the simulator's
+    tiny-2d building).
     """
     sig = builder.config.height_tie_sigma_m
     model = robust_model(builder.config, gtsam.noiseModel.Isotropic.Sigma(1, sig))

@@ -88,11 +88,11 @@ def _cloud(points: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
 
 
 # The fine pass's iterations: SCORE_ITERATIONS for every place the starts meet, then the winner
-# goes on to FINE_ITERATIONS. On floors that share little (stairs seed 2's floors 1 and 2, fitness
-# 0.27) the fine pass creeps along a shallow valley: stopped at 15 iterations, inputs a few
-# millimetres apart gave corrections 6 cm and 0.15 degrees apart (the top floor's checkpoints 26
-# vs 59 mm); at 100 they agree within 1 cm and 0.03 degrees, and 300 moves them by a millimetre.
-# Running every place to 100 cost a second per pair of floors; only the winner needs it.
+# goes on to FINE_ITERATIONS. On floors that share little (fitness 0.27, as two floors of the
+# simulator's stairs building) the fine pass creeps along a shallow valley: stopped at 15
+# iterations, inputs a few millimetres apart give corrections 6 cm and 0.15 degrees apart; at 100
+# they agree within 1 cm and 0.03 degrees, and 300 moves them by a millimetre. Running every place
+# to 100 would cost a second per pair of floors; only the winner needs it.
 SCORE_ITERATIONS = 15
 FINE_ITERATIONS = 100
 
@@ -107,9 +107,9 @@ class _Target(IcpTarget):
 
     With the walls' normals horizontal nothing measures z, and open3d's six-degree-of-freedom
     point-to-plane ICP solves a singular system: from starts a degree or two off it ran away
-    (stairs seed 2 with its top floor's initial poses turned by half a degree: one start came
-    back turned by 180 degrees, the rest at fitness 0.03 where the match is 0.27, and the
-    floors' factor was rejected). Here the coarse
+    (two floors of the simulator's stairs building, the top one's initial poses turned by half a
+    degree: one start comes back turned by 180 degrees, the rest at fitness 0.03 where the match
+    is 0.27, and the floors' factor is rejected). Here the coarse
     passes solve for x, y and yaw alone, and the fine pass adds roll and pitch, which walls seen
     over the band's height do measure, so the x, y and yaw kept are those of open3d's fit where
     that converged.
@@ -223,8 +223,8 @@ def register_floors(
         return FloorMatch(lower, upper, np.eye(4), 0.0, 0.0, 0.0, False,
                           "no solution within the plausible correction")
     # Ranked by the share of points within half the voxel: at the voxel itself two places 10 cm
-    # apart can score alike (stairs seed 2's floors 1-2: 0.299 at the wrong one, 0.271 at the
-    # right one; within 5 cm, 0.175 against 0.214).
+    # apart can score alike (on floors that share little, 0.299 at the wrong one against 0.271 at
+    # the right one; within 5 cm, 0.175 against 0.214).
     candidates = sorted(plausible, key=lambda c: -c.sharp_fitness)
     logger.debug("candidates %s", [(round(c.fitness, 3), round(c.sharp_fitness, 3),
                                     np.round(c.correction[:2, 3], 3).tolist()) for c in candidates])
@@ -301,8 +301,8 @@ def _refine_starts(
     refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
     # Every start goes through the coarse passes, and the prior once more without them: on floors
     # that share little the coarse passes can pull every start into one valley beside the true
-    # one (stairs seed 2's floors 1-2: all nine met 10 cm off, where the fine pass alone from the
-    # prior stays within 2 cm).
+    # one (all nine can meet 10 cm off, where the fine pass alone from the prior stays within
+    # 2 cm).
     for start, with_coarse in [(at, True) for at in starts] + [(np.eye(4), False)]:
         current = start
         if with_coarse:

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from mfmap.floors.filters import true_runs
 from mfmap.types import F64, ImuSeries
 
 # Smoothing of the vertical specific force used to find when the cabin moves.
@@ -256,7 +257,7 @@ def _integrate_legs(
     # move between them is integrated with its own zero-velocity ends.
     slow = np.abs(v) < STOP_SPEED_M_S
     cuts = [a]
-    for r0, r1 in _runs(slow):
+    for r0, r1 in true_runs(slow):
         if r0 > 0 and r1 < slow.shape[0] and (r1 - r0) * dt_s >= STOP_S:
             cuts.append(a + (r0 + r1) // 2)
     cuts.append(b)
@@ -276,12 +277,6 @@ def _integrate_legs(
         worst = max(worst, abs(end_speed))
         legs += 1
     return height, var, worst, legs
-
-
-def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
-    padded = np.concatenate(([0], mask.astype(np.int8), [0]))
-    edges = np.flatnonzero(np.diff(padded))
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 # Accelerating, cruising and braking of one ride: bursts of vertical acceleration closer than

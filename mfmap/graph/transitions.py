@@ -42,8 +42,9 @@ from mfmap.types import (
 
 # Model error added (in quadrature) to a barometric level change's own sigma: what the fit cannot
 # see, such as a floor kept at a slightly different pressure by its air handling (1 Pa ~ 8.5 cm).
-# Over three seeds of two-floor, three-floor-revisit and stairs, 0.005 / 0.01 / 0.02 m gave floor
-# elevation errors of 1.54 / 1.57 / 1.67 cm RMS (2.46 with the floors stage's change at 3 cm).
+# On the simulator's two-floor, three-floor-revisit and stairs buildings (three seeds each),
+# 0.005 / 0.01 / 0.02 m give floor elevation errors of 1.54 / 1.57 / 1.67 cm RMS (2.46 with the
+# floors stage's change at 3 cm).
 BARO_MODEL_SIGMA_M = 0.01
 
 
@@ -279,8 +280,9 @@ def height_keys(a: Keyframe, b: Keyframe, config: GraphConfig) -> tuple[int, int
 
     A ground robot stands on the floors at both ends: the height change is between the floors'
     levels, not between two keyframes, which the floors' ties (2 cm each) would let it bend
-    locally instead of moving the floor (elevation error over seeds 0-2 of two-floor,
-    three-floor-revisit and stairs: 1.6 -> 1.1 cm RMS). The keyframes without the ties.
+    locally instead of moving the floor (floor elevations 1.1 cm RMS off against 1.6 cm on the
+    keyframes, over the simulator's two-floor, three-floor-revisit and stairs buildings, three
+    seeds each). The keyframes where there are no ties.
     """
     if config.same_floor_height_tie and a.floor_id >= 0 and b.floor_id >= 0 and a.floor_id != b.floor_id:
         return Fl(a.floor_id), Fl(b.floor_id)
