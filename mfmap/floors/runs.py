@@ -23,11 +23,14 @@ from mfmap.types import TransitionKind
 _NOISE_RUN_FRACTION = 0.3
 # A movement the other way at least this big between two runs means they are not one climb.
 _BLOCK_RUN_FRACTION = 0.15
+# The robot moves for at least this share of a transition's time on stairs (run_kind).
 _MOVING_FRACTION_STAIRS = 0.5
 
 
 @dataclass
 class Run:
+    """Grid indices of one-signed vertical speed: a candidate transition."""
+
     i0: int  # first grid index
     i1: int  # one past the last grid index
     sign: int
