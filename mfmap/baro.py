@@ -2,8 +2,9 @@
 
     z = T0 / L * ((P2 / P1) ** (-L * R / g) - 1)
 
-One place for the formula, so the simulator that makes pressure from height and the floors stage
-that makes height from pressure cannot disagree.
+One place for the formula: the floors stage and the graph's barometric factors both make height
+from pressure with it. The simulator keeps its own atmosphere (mfmap.sim.atmosphere), so that the
+estimator is tested against a world it does not share a model with.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from __future__ import annotations
 from typing import TypeVar
 
 import numpy as np
-import numpy.typing as npt
+
+from mfmap.types import F64
 
 T0_K = 295.0  # room temperature, as in the LeGO-LOAM elevator paper
 LAPSE_K_PER_M = 0.0065
@@ -20,11 +22,11 @@ G_M_PER_S2 = 9.81
 
 _EXP = LAPSE_K_PER_M * R_J_PER_KG_K / G_M_PER_S2
 
-ArrayOrFloat = TypeVar("ArrayOrFloat", float, npt.NDArray[np.float64])
+ArrayOrFloat = TypeVar("ArrayOrFloat", float, F64)
 
 
 def height_from_pressure(
-    p_pa: ArrayOrFloat, p_ref_pa: float | npt.NDArray[np.float64], temperature_k: float = T0_K
+    p_pa: ArrayOrFloat, p_ref_pa: float | F64, temperature_k: float = T0_K
 ) -> ArrayOrFloat:
     """Height in metres above the level where the pressure is `p_ref_pa`."""
     ratio = np.asarray(p_pa, dtype=np.float64) / p_ref_pa
@@ -33,7 +35,7 @@ def height_from_pressure(
 
 
 def pressure_from_height(
-    h_m: ArrayOrFloat, p_ref_pa: float | npt.NDArray[np.float64], temperature_k: float = T0_K
+    h_m: ArrayOrFloat, p_ref_pa: float | F64, temperature_k: float = T0_K
 ) -> ArrayOrFloat:
     """Pressure in Pa at `h_m` metres above the level where the pressure is `p_ref_pa`."""
     h = np.asarray(h_m, dtype=np.float64)

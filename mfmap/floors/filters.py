@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import linalg, ndimage, signal
 
-F64 = npt.NDArray[np.float64]
+from mfmap.types import F64
 
 MAD_TO_SIGMA = 1.4826
 # Cells of the uniform grid per sample at most (a trace with gaps needs a few).
@@ -230,34 +230,10 @@ def remove_transients(
     jump = padded[2 * edge :] - padded[: -2 * edge]
     out = values.copy()
     removed = 0
+    check = _PulseCheck(median, jump, sigma, max_amplitude_m, n, edge, flank, gap)
     for pulse in (median - dilate(erode(median)), -(erode(dilate(median)) - median)):
-        for i0, i1 in _true_runs(np.abs(pulse) > 2.5 * sigma):
-            if float(np.max(np.abs(pulse[i0:i1]))) < max(6.0 * sigma, 0.1):
-                continue  # noise: most candidates end here, before any median is taken
-            # A pulse sits on a level stretch and returns to it: both flanks flat and equal. A
-            # stay between a ride and a dip fails this, its ride flank is a slope.
-            lo_f, hi_f = i0 - gap - flank, i1 + gap + flank
-            if lo_f < 0 or hi_f > n:
-                continue
-            before = median[lo_f : i0 - gap]
-            after = median[i1 + gap : hi_f]
-            # Height against the flanks (the opening's own noise floor would inflate it).
-            peak = float(np.median(median[i0:i1]) - np.median(np.concatenate((before, after))))
-            if abs(peak) < max(6.0 * sigma, 0.1) or abs(peak) > max_amplitude_m:
-                continue
-            half_f = flank // 2
-            slope = max(
-                abs(float(np.median(before[:half_f]) - np.median(before[half_f:]))),
-                abs(float(np.median(after[:half_f]) - np.median(after[half_f:]))),
-            )
-            step = abs(float(np.median(before) - np.median(after)))
-            if slope > 0.3 * abs(peak) or step > 0.4 * abs(peak):
-                continue
-            half = max(1, (i1 - i0) // 2)
-            sign = np.sign(peak)
-            rise = float(np.max(sign * jump[max(0, i0 - edge) : i0 + half]))
-            fall = float(np.max(-sign * jump[i1 - half : min(n, i1 + edge)]))
-            if min(rise, fall) < 0.35 * abs(peak):
+        for i0, i1 in true_runs(np.abs(pulse) > 2.5 * sigma):
+            if not check.is_pulse(pulse, i0, i1):
                 continue
             lo, hi = max(0, i0 - edge), min(n, i1 + edge)
             out[lo:hi] -= pulse[lo:hi]
@@ -265,7 +241,52 @@ def remove_transients(
     return out, removed
 
 
-def _true_runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
+@dataclass(frozen=True)
+class _PulseCheck:
+    """Whether a candidate of `remove_transients` is a pulse: high above the running median's
+    noise, on level flanks that agree, with abrupt edges, and not a floor's height."""
+
+    median: F64
+    jump: F64  # step size of the median at each sample over +-edge samples
+    sigma: float  # the median's noise
+    max_amplitude_m: float
+    n: int  # samples of the trace
+    edge: int  # samples
+    flank: int
+    gap: int
+
+    def is_pulse(self, pulse: F64, i0: int, i1: int) -> bool:
+        median, jump, sigma = self.median, self.jump, self.sigma
+        n, edge, flank, gap = self.n, self.edge, self.flank, self.gap
+        if float(np.max(np.abs(pulse[i0:i1]))) < max(6.0 * sigma, 0.1):
+            return False  # noise: most candidates end here, before any median is taken
+        # A pulse sits on a level stretch and returns to it: both flanks flat and equal. A
+        # stay between a ride and a dip fails this, its ride flank is a slope.
+        lo_f, hi_f = i0 - gap - flank, i1 + gap + flank
+        if lo_f < 0 or hi_f > n:
+            return False
+        before = median[lo_f : i0 - gap]
+        after = median[i1 + gap : hi_f]
+        # Height against the flanks (the opening's own noise floor would inflate it).
+        peak = float(np.median(median[i0:i1]) - np.median(np.concatenate((before, after))))
+        if abs(peak) < max(6.0 * sigma, 0.1) or abs(peak) > self.max_amplitude_m:
+            return False
+        half_f = flank // 2
+        slope = max(
+            abs(float(np.median(before[:half_f]) - np.median(before[half_f:]))),
+            abs(float(np.median(after[:half_f]) - np.median(after[half_f:]))),
+        )
+        step = abs(float(np.median(before) - np.median(after)))
+        if slope > 0.3 * abs(peak) or step > 0.4 * abs(peak):
+            return False
+        half = max(1, (i1 - i0) // 2)
+        sign = np.sign(peak)
+        rise = float(np.max(sign * jump[max(0, i0 - edge) : i0 + half]))
+        fall = float(np.max(-sign * jump[i1 - half : min(n, i1 + edge)]))
+        return not min(rise, fall) < 0.35 * abs(peak)
+
+
+def true_runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
     """(start, end) index pairs, end exclusive, of the runs of True in mask."""
     padded = np.concatenate(([0], mask.astype(np.int8), [0]))
     edges = np.flatnonzero(np.diff(padded))

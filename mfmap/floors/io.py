@@ -1,4 +1,4 @@
-"""Floors stage files: pressure CSVs in, floors.json out (schema in DESIGN.md / the common brief)."""
+"""Floors stage files: pressure CSVs in, floors.json out (its schema: docs/formats.md)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from mfmap.atomic import write_text_atomic
 from mfmap.errors import LogError, OutputError
-from mfmap.types import FloorSegmentation, PressureSeries
+from mfmap.types import F64, FloorSegmentation, PressureSeries
 
 # Median pressure magnitude -> factor to Pa. Indoor air pressure is 80-110 kPa.
 _UNIT_BY_MAGNITUDE = ((20_000.0, 200_000.0, 1.0, "Pa"), (200.0, 2_000.0, 100.0, "hPa"), (20.0, 200.0, 1_000.0, "kPa"))
@@ -29,9 +29,10 @@ def read_pressure_csv(path: Path) -> tuple[PressureSeries, list[str]]:
     """A CSV of time (s) and pressure (Pa, hPa or kPa, told apart by magnitude).
 
     Comma, semicolon or tab separated; lines starting with # or % are comments; an Android
-    GetSensorData log (PRES lines, as in the IPIN competitions) is read too. The header is optional. With a header, time is the first column (or one named t/time/stamp)
-    and pressure the column whose name says pressure (else the last); without one, the first and
-    last columns. Returns the series and warnings (unit conversions, dropped rows).
+    GetSensorData log (PRES lines, as in the IPIN competitions) is read too. The header is
+    optional. With a header, time is the first column (or one named t/time/stamp) and pressure
+    the column whose name says pressure (else the last); without one, the first and last
+    columns. Returns the series and warnings (unit conversions, dropped rows).
     """
     try:
         text = path.read_text(errors="replace")
@@ -52,17 +53,7 @@ def read_pressure_csv(path: Path) -> tuple[PressureSeries, list[str]]:
     width = len(header) if header is not None else len(rows[0]) if rows else 0
     if width < 2:
         raise LogError("expected at least two columns: time (s) and pressure", path)
-    t_col, p_col = 0, width - 1
-    time_scale = 1.0
-    if header is not None:
-        named_p = [i for i, h in enumerate(header) if "pres" in h or h in ("p", "p_pa", "p_hpa")]
-        if named_p:
-            p_col = named_p[0]
-        named_t = [i for i, h in enumerate(header) if h in ("t", "time", "stamp", "t_s", "time_s", "stamp_ns")]
-        if named_t:
-            t_col = named_t[0]
-        if header[t_col].endswith("_ns"):
-            time_scale = 1e-9
+    t_col, p_col, time_scale = _columns(header, width)
     warnings: list[str] = []
     times: list[float] = []
     values: list[float] = []
@@ -80,19 +71,37 @@ def read_pressure_csv(path: Path) -> tuple[PressureSeries, list[str]]:
     if not values:
         raise LogError("no rows of numbers in the pressure CSV", path)
     t_s = np.asarray(times, dtype=np.float64)
-    p = np.asarray(values, dtype=np.float64)
+    p = _in_pa(np.asarray(values, dtype=np.float64), path, warnings)
+    order = np.argsort(t_s, kind="stable")
+    stamp_ns = np.round(t_s[order] * 1e9).astype(np.int64)
+    return PressureSeries(stamp_ns=stamp_ns, pressure_pa=p[order], frame_id=path.stem), warnings
+
+
+def _columns(header: list[str] | None, width: int) -> tuple[int, int, float]:
+    """The time and pressure columns and the factor from the time column's unit to seconds."""
+    t_col, p_col = 0, width - 1
+    time_scale = 1.0
+    if header is not None:
+        named_p = [i for i, h in enumerate(header) if "pres" in h or h in ("p", "p_pa", "p_hpa")]
+        if named_p:
+            p_col = named_p[0]
+        named_t = [i for i, h in enumerate(header) if h in ("t", "time", "stamp", "t_s", "time_s", "stamp_ns")]
+        if named_t:
+            t_col = named_t[0]
+        if header[t_col].endswith("_ns"):
+            time_scale = 1e-9
+    return t_col, p_col, time_scale
+
+
+def _in_pa(p: F64, path: Path, warnings: list[str]) -> F64:
+    """Pressures in Pa, the unit told by their median's magnitude (a warning when converted)."""
     median = float(np.median(p[np.isfinite(p)])) if np.any(np.isfinite(p)) else float("nan")
     for lo, hi, factor, unit in _UNIT_BY_MAGNITUDE:
         if lo <= median < hi:
             if unit != "Pa":
                 warnings.append(f"pressure in {path.name} read as {unit} (median {median:g}), converted to Pa")
-            p = p * factor
-            break
-    else:
-        raise LogError(f"pressure values around {median:g} are not Pa, hPa or kPa of indoor air", path)
-    order = np.argsort(t_s, kind="stable")
-    stamp_ns = np.round(t_s[order] * 1e9).astype(np.int64)
-    return PressureSeries(stamp_ns=stamp_ns, pressure_pa=p[order], frame_id=path.stem), warnings
+            return p * factor
+    raise LogError(f"pressure values around {median:g} are not Pa, hPa or kPa of indoor air", path)
 
 
 def _read_getsensordata(path: Path, lines: list[str]) -> tuple[PressureSeries, list[str]]:

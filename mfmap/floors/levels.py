@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 
 from mfmap.floors.filters import (
@@ -127,31 +128,14 @@ def fit_level_change(
     is_after = after[used].astype(np.float64)
     design = np.stack([1.0 - is_after, is_after, t[used] - 0.5 * (ta + tb)], axis=1)
 
-    # Steps: a robust (Tukey) fit on the running median, then everything far from it.
-    y = med[used]
-    x = np.array([robust_level(med[before]), robust_level(med[after]), 0.0])
-    for _ in range(20):
-        r = y - design @ x
-        c = 4.685 * max(MAD_TO_SIGMA * float(np.median(np.abs(r))), 0.02)
-        x = _weighted_lstsq(design, y, np.clip(1.0 - (r / c) ** 2, 0.0, None) ** 2)
-    pad = max(1, round(1.0 / dt))
-    step = ndimage.binary_dilation(np.abs(y - design @ x) > step_m, np.ones(2 * pad + 1, dtype=bool))
+    step = _steps(design, med[used], (med[before], med[after]), dt, step_m)
     keep = ~step
     if np.count_nonzero(keep & (is_after == 0)) < 10 or np.count_nonzero(keep & (is_after == 1)) < 10:
         return LevelChange(None, 0.0, side, float(step.mean()), "door/HVAC steps cover one side")
 
     a, z = design[keep], raw[used][keep]
     x = _weighted_lstsq(a, z, np.ones(z.shape[0]))
-    resid = z - a @ x
-    var = float(resid.var())
-    white = var
-    for block_s in BLOCKS_S:
-        # Correlated over the block: its means vary more than white noise's would.
-        per_block = max(1, round(block_s / dt))
-        n_blocks = resid.shape[0] // per_block
-        if n_blocks >= 8 and white > 0:
-            blocks = resid[: n_blocks * per_block].reshape(n_blocks, per_block).mean(axis=1)
-            var = max(var, float(blocks.var()) * per_block)
+    var = _noise_variance(z - a @ x, dt)
     # The shared slope, with the weather's prior: over a long transition (a stair walk with
     # stands on its landings, minutes) the slope is extrapolated across it, and a floor's own
     # wander on one side (gusts correlated over tens of seconds, a zone near a pressurised
@@ -162,6 +146,33 @@ def fit_level_change(
     x = cov @ (a.T @ z) / max(var, 1e-12)
     sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
     return LevelChange(float(x[1] - x[0]), sigma, side, float(step.mean()), "ok")
+
+
+def _steps(design: F64, y: F64, sides: tuple[F64, F64], dt: float, step_m: float) -> npt.NDArray[np.bool_]:
+    """Door and HVAC steps in the running median `y`: a robust (Tukey) fit of the model, then
+    every sample further than `step_m` from it, with a second either side. `sides`: the running
+    median before and after, for the fit's start."""
+    x = np.array([robust_level(sides[0]), robust_level(sides[1]), 0.0])
+    for _ in range(20):
+        r = y - design @ x
+        c = 4.685 * max(MAD_TO_SIGMA * float(np.median(np.abs(r))), 0.02)
+        x = _weighted_lstsq(design, y, np.clip(1.0 - (r / c) ** 2, 0.0, None) ** 2)
+    pad = max(1, round(1.0 / dt))
+    return np.asarray(ndimage.binary_dilation(np.abs(y - design @ x) > step_m, np.ones(2 * pad + 1, dtype=bool)))
+
+
+def _noise_variance(resid: F64, dt: float) -> float:
+    """The residuals' variance, raised where they are correlated over one of BLOCKS_S."""
+    var = float(resid.var())
+    white = var
+    for block_s in BLOCKS_S:
+        # Correlated over the block: its means vary more than white noise's would.
+        per_block = max(1, round(block_s / dt))
+        n_blocks = resid.shape[0] // per_block
+        if n_blocks >= 8 and white > 0:
+            blocks = resid[: n_blocks * per_block].reshape(n_blocks, per_block).mean(axis=1)
+            var = max(var, float(blocks.var()) * per_block)
+    return var
 
 
 def _weighted_lstsq(a: F64, y: F64, w: F64) -> F64:

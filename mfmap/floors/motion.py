@@ -11,10 +11,8 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from mfmap.floors.config import FloorsConfig
-from mfmap.types import ImuSeries, OdomSeries
+from mfmap.types import F64, I64, ImuSeries, OdomSeries
 
-I64 = npt.NDArray[np.int64]
-F64 = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,27 @@ def plot_segmentation(seg: FloorSegmentation, png_path: Path, title: str = "") -
     fig, ax = plt.subplots(figsize=(12, 4.8))
     ax.plot(t_s, seg.height_raw_m - offset, color="#aec7e8", linewidth=0.5, label="raw (hypsometric)")
     ax.plot(t_s, seg.height_filtered_m - offset, color="#1f77b4", linewidth=1.3, label="filtered")
+    _plot_floors(ax, seg, start_ns)
+    _shade_transitions(ax, seg, start_ns)
+    ax.set_xlabel("time since the first barometer sample (s)")
+    ax.set_ylabel("height above the start floor (m)")
+    ax.set_title(title or "barometer floors", fontsize=10)
+    ax.grid(True, linewidth=0.3)
+    ax.legend(loc="upper left", fontsize=8, ncol=4)
+    fig.tight_layout()
+    fig.subplots_adjust(right=0.86)
+    try:
+        with atomic_path(png_path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    except OSError as err:
+        raise OutputError(f"cannot write the plot ({err.strerror or err})", png_path) from err
+    finally:
+        plt.close(fig)
+    return png_path
+
+
+def _plot_floors(ax: Any, seg: FloorSegmentation, start_ns: int) -> None:
+    """Each floor's level, thin, and its visits, thick, labelled at the right."""
     # Floor levels come from the change across each transition, not from the trace (which drifts
     # with the weather): thin lines for the levels, thick ones for each visit.
     first_visit = True
@@ -54,6 +76,10 @@ def plot_segmentation(seg: FloorSegmentation, png_path: Path, title: str = "") -
             fontsize=8,
             color="#d62728",
         )
+
+
+def _shade_transitions(ax: Any, seg: FloorSegmentation, start_ns: int) -> None:
+    """Each transition shaded in its kind's colour."""
     seen: set[TransitionKind] = set()
     for tr in seg.transitions:
         colour = _KIND_COLOUR[tr.kind]
@@ -65,18 +91,3 @@ def plot_segmentation(seg: FloorSegmentation, png_path: Path, title: str = "") -
             label=tr.kind.value if tr.kind not in seen else None,
         )
         seen.add(tr.kind)
-    ax.set_xlabel("time since the first barometer sample (s)")
-    ax.set_ylabel("height above the start floor (m)")
-    ax.set_title(title or "barometer floors", fontsize=10)
-    ax.grid(True, linewidth=0.3)
-    ax.legend(loc="upper left", fontsize=8, ncol=4)
-    fig.tight_layout()
-    fig.subplots_adjust(right=0.86)
-    try:
-        with atomic_path(png_path) as tmp:
-            fig.savefig(tmp, dpi=110)
-    except OSError as err:
-        raise OutputError(f"cannot write the plot ({err.strerror or err})", png_path) from err
-    finally:
-        plt.close(fig)
-    return png_path

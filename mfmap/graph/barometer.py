@@ -8,9 +8,6 @@ import numpy as np
 from mfmap.baro import height_from_pressure
 from mfmap.types import F64, PressureSeries
 
-GAS_CONSTANT_DRY_AIR = 287.05  # J / (kg K)
-GRAVITY_M_S2 = 9.80665
-
 
 def pressure_to_height_m(pressure_pa: F64, reference_pa: float, temperature_k: float) -> F64:
     """Hypsometric height above the reference pressure (eq. 3 of the LeGO-LOAM elevator paper)."""

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from mfmap.types import TransitionKind
+from mfmap.types import F64, TransitionKind
 
 # Air in a building from about -10 to +50 deg C at an assumed 295 K: heights scale by 0.89-1.10.
 # A barometer whose every scale-true comparison falls outside (beyond its noise) is not
@@ -171,8 +171,21 @@ def calibrate(
         if done:
             break
     cal = Calibration(s, sig_s, scale_prior, sig_o, len(pairs))
-    # Beyond physics: every pair's own scale outside what a building's air allows, by more than
-    # three of its sigmas.
+    _check_physics(cal, pairs, (t, st, b, sb), offset_prior_sigma_m, scale_limits)
+    return cal
+
+
+def _check_physics(
+    cal: Calibration,
+    pairs: list[TransitionHeights],
+    measured: tuple[F64, F64, F64, F64],
+    offset_prior_sigma_m: float,
+    scale_limits: tuple[float, float],
+) -> None:
+    """Mark `cal` unusable, with a warning, when every pair's own scale is outside what a
+    building's air allows, by more than three of its sigmas. `measured`: the pairs' scale-true
+    heights and sigmas, then their barometric heights and sigmas."""
+    t, st, b, sb = measured
     ratio = t / b
     ratio_sigma = np.sqrt(st**2 + (sb * ratio) ** 2 + 2.0 * offset_prior_sigma_m**2) / np.abs(b)
     lo, hi = scale_limits
@@ -188,7 +201,6 @@ def calibrate(
             f"building allows (scale {lo:g}-{hi:g}; {listed}): the scale-true heights are used, the "
             "barometer's are not"
         )
-    return cal
 
 
 def _solve(rows: list[tuple[int, int, float, float]], floors: list[int], start: int) -> tuple[dict[int, float], np.ndarray, np.ndarray]:

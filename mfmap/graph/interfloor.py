@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import open3d as o3d
@@ -87,11 +88,11 @@ def _cloud(points: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
 
 
 # The fine pass's iterations: SCORE_ITERATIONS for every place the starts meet, then the winner
-# goes on to FINE_ITERATIONS. On floors that share little (stairs seed 2's floors 1 and 2, fitness
-# 0.27) the fine pass creeps along a shallow valley: stopped at 15 iterations, inputs a few
-# millimetres apart gave corrections 6 cm and 0.15 degrees apart (the top floor's checkpoints 26
-# vs 59 mm); at 100 they agree within 1 cm and 0.03 degrees, and 300 moves them by a millimetre.
-# Running every place to 100 cost a second per pair of floors; only the winner needs it.
+# goes on to FINE_ITERATIONS. On floors that share little (fitness 0.27, as two floors of the
+# simulator's stairs building) the fine pass creeps along a shallow valley: stopped at 15
+# iterations, inputs a few millimetres apart give corrections 6 cm and 0.15 degrees apart; at 100
+# they agree within 1 cm and 0.03 degrees, and 300 moves them by a millimetre. Running every place
+# to 100 would cost a second per pair of floors; only the winner needs it.
 SCORE_ITERATIONS = 15
 FINE_ITERATIONS = 100
 
@@ -106,9 +107,9 @@ class _Target(IcpTarget):
 
     With the walls' normals horizontal nothing measures z, and open3d's six-degree-of-freedom
     point-to-plane ICP solves a singular system: from starts a degree or two off it ran away
-    (stairs seed 2 with its top floor's initial poses turned by half a degree: one start came
-    back turned by 180 degrees, the rest at fitness 0.03 where the match is 0.27, and the
-    floors' factor was rejected). Here the coarse
+    (two floors of the simulator's stairs building, the top one's initial poses turned by half a
+    degree: one start comes back turned by 180 degrees, the rest at fitness 0.03 where the match
+    is 0.27, and the floors' factor is rejected). Here the coarse
     passes solve for x, y and yaw alone, and the fine pass adds roll and pitch, which walls seen
     over the band's height do measure, so the x, y and yaw kept are those of open3d's fit where
     that converged.
@@ -209,58 +210,12 @@ def register_floors(
     reg = o3d.pipelines.registration
     target = _cloud(lower_points, voxel_m)
     source = _cloud(upper_points, voxel_m)
-    feature_param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel_m * 5.0, max_nn=50)
-    source_fpfh = reg.compute_fpfh_feature(source, feature_param)  # type: ignore[call-arg]
-    target_fpfh = reg.compute_fpfh_feature(target, feature_param)  # type: ignore[call-arg]
-    ransac = reg.registration_ransac_based_on_feature_matching(
-        source,
-        target,
-        source_fpfh,
-        target_fpfh,
-        True,
-        voxel_m * 1.5,
-        reg.TransformationEstimationPointToPoint(False),
-        3,
-        [
-            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-            reg.CorrespondenceCheckerBasedOnDistance(voxel_m * 1.5),
-        ],
-        reg.RANSACConvergenceCriteria(20000, 0.999),
-    )
-    # Starts: the global (RANSAC) guess, the prior (identity: the elevator hold), and the prior
-    # shifted and turned a little, so a floor that slides along itself (a corridor, a row of
-    # pillars) shows itself as a second, distinct solution that fits as well.
-    starts = [np.eye(4), project_xyyaw(np.asarray(ransac.transformation))]
-    starts += [_yaw_about(np.zeros(2), math.radians(5.0)), _yaw_about(np.zeros(2), math.radians(-5.0))]
-    for dx, dy in ((0.5, 0.0), (0.0, 0.5), (-0.5, 0.0), (0.0, -0.5)):
-        shifted = np.eye(4)
-        shifted[:2, 3] = (dx, dy)
-        starts.append(shifted)
+    starts = _starts(_global_guess(source, target, voxel_m))
     coarse = _Target(target.voxel_down_sample(voxel_m * 2.0))
     fine = _Target(target)
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
     fine_source = np.asarray(source.points)
-    candidates: list[_Candidate] = []
-    refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
-    # Every start goes through the coarse passes, and the prior once more without them: on floors
-    # that share little the coarse passes can pull every start into one valley beside the true
-    # one (stairs seed 2's floors 1-2: all nine met 10 cm off, where the fine pass alone from the
-    # prior stays within 2 cm).
-    for start, with_coarse in [(at, True) for at in starts] + [(np.eye(4), False)]:
-        current = start
-        if with_coarse:
-            for radius in (voxel_m * 5.0, voxel_m * 2.5):
-                current = coarse.icp(coarse_source, current, radius)
-        # Starts usually meet in the coarse passes: the fine pass and the score once per place.
-        done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
-        if done is None:
-            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
-            best = project_xyyaw(pose)
-            score = reg.evaluate_registration(source, target, voxel_m, best)
-            sharp = reg.evaluate_registration(source, target, voxel_m / 2.0, best)
-            done = _Candidate(float(score.fitness), float(sharp.fitness), best, pose)
-            refined.append((current, done))
-        candidates.append(done)
+    candidates = _refine_starts(starts, coarse, fine, coarse_source, fine_source, source, target, voxel_m)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
     # rectangular building fits its outer walls but is not a plausible error of the elevator hold.
     plausible = [c for c in candidates if _plausible(c.correction, max_correction_m, max_correction_deg)]
@@ -268,8 +223,8 @@ def register_floors(
         return FloorMatch(lower, upper, np.eye(4), 0.0, 0.0, 0.0, False,
                           "no solution within the plausible correction")
     # Ranked by the share of points within half the voxel: at the voxel itself two places 10 cm
-    # apart can score alike (stairs seed 2's floors 1-2: 0.299 at the wrong one, 0.271 at the
-    # right one; within 5 cm, 0.175 against 0.214).
+    # apart can score alike (on floors that share little, 0.299 at the wrong one against 0.271 at
+    # the right one; within 5 cm, 0.175 against 0.214).
     candidates = sorted(plausible, key=lambda c: -c.sharp_fitness)
     logger.debug("candidates %s", [(round(c.fitness, 3), round(c.sharp_fitness, 3),
                                     np.round(c.correction[:2, 3], 3).tolist()) for c in candidates])
@@ -291,3 +246,76 @@ def register_floors(
         accepted, reason = False, f"ambiguous: a distinct solution scores {runner_up:.2f} vs {best_fitness:.2f}"
     logger.debug("floors %d/%d: fitness %.3f runner-up %.3f %s", lower, upper, best_fitness, runner_up, reason)
     return FloorMatch(lower, upper, best, best_fitness, best_rmse, runner_up, accepted, reason)
+
+
+def _global_guess(source: Any, target: Any, voxel_m: float) -> F64:
+    """The upper floor's pose on the lower one by FPFH features and RANSAC, with no prior."""
+    reg = o3d.pipelines.registration
+    feature_param = o3d.geometry.KDTreeSearchParamHybrid(radius=voxel_m * 5.0, max_nn=50)
+    source_fpfh = reg.compute_fpfh_feature(source, feature_param)  # type: ignore[call-arg]
+    target_fpfh = reg.compute_fpfh_feature(target, feature_param)  # type: ignore[call-arg]
+    ransac = reg.registration_ransac_based_on_feature_matching(
+        source,
+        target,
+        source_fpfh,
+        target_fpfh,
+        True,
+        voxel_m * 1.5,
+        reg.TransformationEstimationPointToPoint(False),
+        3,
+        [
+            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+            reg.CorrespondenceCheckerBasedOnDistance(voxel_m * 1.5),
+        ],
+        reg.RANSACConvergenceCriteria(20000, 0.999),
+    )
+    return np.asarray(ransac.transformation)
+
+
+def _starts(global_guess: F64) -> list[F64]:
+    """Starts: the global (RANSAC) guess, the prior (identity: the elevator hold), and the prior
+    shifted and turned a little, so a floor that slides along itself (a corridor, a row of
+    pillars) shows itself as a second, distinct solution that fits as well."""
+    starts = [np.eye(4), project_xyyaw(global_guess)]
+    starts += [_yaw_about(np.zeros(2), math.radians(5.0)), _yaw_about(np.zeros(2), math.radians(-5.0))]
+    for dx, dy in ((0.5, 0.0), (0.0, 0.5), (-0.5, 0.0), (0.0, -0.5)):
+        shifted = np.eye(4)
+        shifted[:2, 3] = (dx, dy)
+        starts.append(shifted)
+    return starts
+
+
+def _refine_starts(
+    starts: list[F64],
+    coarse: _Target,
+    fine: _Target,
+    coarse_source: np.ndarray,
+    fine_source: np.ndarray,
+    source: Any,
+    target: Any,
+    voxel_m: float,
+) -> list[_Candidate]:
+    """Each start through the coarse passes and the fine pass, scored; one candidate per start."""
+    reg = o3d.pipelines.registration
+    candidates: list[_Candidate] = []
+    refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
+    # Every start goes through the coarse passes, and the prior once more without them: on floors
+    # that share little the coarse passes can pull every start into one valley beside the true
+    # one (all nine can meet 10 cm off, where the fine pass alone from the prior stays within
+    # 2 cm).
+    for start, with_coarse in [(at, True) for at in starts] + [(np.eye(4), False)]:
+        current = start
+        if with_coarse:
+            for radius in (voxel_m * 5.0, voxel_m * 2.5):
+                current = coarse.icp(coarse_source, current, radius)
+        # Starts usually meet in the coarse passes: the fine pass and the score once per place.
+        done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
+        if done is None:
+            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
+            best = project_xyyaw(pose)
+            score = reg.evaluate_registration(source, target, voxel_m, best)
+            sharp = reg.evaluate_registration(source, target, voxel_m / 2.0, best)
+            done = _Candidate(float(score.fitness), float(sharp.fitness), best, pose)
+            refined.append((current, done))
+        candidates.append(done)
+    return candidates

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from mfmap.floors.filters import true_runs
 from mfmap.types import F64, ImuSeries
 
 # Smoothing of the vertical specific force used to find when the cabin moves.
@@ -41,6 +42,8 @@ STILL_GYRO_RAD_S = 0.05
 STILL_ACCEL_STD_M_S2 = 0.1
 # Model error (cabin sway, timing) added to the white-noise sigma.
 SIGMA_FLOOR_M = 0.01
+# What an accelerometer at rest reads along up, less its bias.
+STANDARD_GRAVITY_M_S2 = 9.80665
 
 
 @dataclass(frozen=True)
@@ -52,7 +55,7 @@ class RideHeight:
     height_change_m: float | None
     sigma_m: float
     reason: str  # "ok" or why the IMU estimate was skipped
-    bias_m_s2: float = 0.0  # specific force along up at rest, minus 9.80665 (gravity + bias)
+    bias_m_s2: float = 0.0  # specific force along up at rest (gravity + bias) less STANDARD_GRAVITY_M_S2
     legs: int = 0  # cabin moves integrated on their own (a ride with stops counts each leg)
     end_speed_m_s: float = 0.0  # largest velocity left at a leg's end before the zero-velocity update
 
@@ -116,19 +119,79 @@ def ride_height(
     """
     if imu is None or len(imu) < 10:
         return RideHeight(start_ns, end_ns, None, 0.0, "no IMU")
-    t = imu.stamp_ns
     span = int(search_s * 1e9)
-    lo = int(np.searchsorted(t, start_ns - span - int((PAD_S + STILL_S) * 1e9)))
-    hi = int(np.searchsorted(t, end_ns + span + int((PAD_S + STILL_S) * 1e9), side="right"))
-    if hi - lo < 50:
-        return RideHeight(start_ns, end_ns, None, 0.0, "too few IMU samples around the ride")
-    ts = t[lo:hi]
-    acc = np.asarray(imu.accel_m_s2[lo:hi], dtype=np.float64)
-    gyro = np.asarray(imu.gyro_rad_s[lo:hi], dtype=np.float64)
-    dt_s = float(np.median(np.diff(ts))) / 1e9
-    if not dt_s > 0:
-        return RideHeight(start_ns, end_ns, None, 0.0, "IMU stamps not increasing")
+    samples = _Samples.around(imu, start_ns, end_ns, span)
+    if isinstance(samples, str):
+        return RideHeight(start_ns, end_ns, None, 0.0, samples)
+    found = _cabin_motion(samples, start_ns, end_ns, span)
+    if isinstance(found, RideHeight):
+        return found
+    t0, t1, pre, post, n_smooth = found
+    ts, acc, dt_s = samples.ts, samples.acc, samples.dt_s
 
+    along = _along_up(acc, pre | post)
+    if isinstance(along, str):
+        return RideHeight(t0, t1, None, 0.0, along)
+    f_up, g_still, noise = along
+
+    ride = (ts >= t0) & (ts <= t1)
+    if float(np.diff(ts[ride]).max(initial=0)) / 1e9 > 0.1:
+        return RideHeight(t0, t1, None, 0.0, "IMU samples missing during the ride")
+    a_all = f_up - g_still
+    # The window hugs the motion: from the first to the last sample whose smoothed acceleration
+    # stands out of the stand-still noise, searched within the padded window.
+    quiet = max(QUIET_SIGMAS * noise / math.sqrt(n_smooth), QUIET_MIN_M_S2)
+    active = np.abs(_moving_mean(a_all, n_smooth)) > quiet
+    i_lo, i_hi = int(np.flatnonzero(ride)[0]), int(np.flatnonzero(ride)[-1]) + 1
+    pad = round(TIGHT_PAD_S / dt_s)
+    ends = _quiet_ends(active, i_lo, i_hi, pad)
+    if ends is None:
+        return RideHeight(t0, t1, None, 0.0, "no vertical acceleration found")
+    a, b = ends
+    height, var, worst, legs = _integrate_legs(samples, a_all, active, (a, b), pad, noise)
+    start, stop = int(ts[a]), int(ts[b])
+    if worst > MAX_END_SPEED_M_S:
+        return RideHeight(start, stop, None, 0.0,
+                          f"the cabin is not at rest at the end of the integration ({worst:.2f} m/s "
+                          "left): the accelerometer's bias changed or samples are missing",
+                          bias_m_s2=g_still - STANDARD_GRAVITY_M_S2, legs=legs, end_speed_m_s=worst)
+    sigma = math.hypot(math.sqrt(var), SIGMA_FLOOR_M)
+    return RideHeight(start, stop, height, sigma, "ok", bias_m_s2=g_still - STANDARD_GRAVITY_M_S2,
+                      legs=legs, end_speed_m_s=worst)
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The IMU's samples around one ride: stamps, specific force, turn rate, median interval."""
+
+    ts: npt.NDArray[np.int64]
+    acc: F64
+    gyro: F64
+    dt_s: float
+
+    @classmethod
+    def around(cls, imu: ImuSeries, start_ns: int, end_ns: int, span: int) -> _Samples | str:
+        """The samples within `span` ns of the ride and the stand-stills beyond, or why none."""
+        t = imu.stamp_ns
+        lo = int(np.searchsorted(t, start_ns - span - int((PAD_S + STILL_S) * 1e9)))
+        hi = int(np.searchsorted(t, end_ns + span + int((PAD_S + STILL_S) * 1e9), side="right"))
+        if hi - lo < 50:
+            return "too few IMU samples around the ride"
+        ts = t[lo:hi]
+        acc = np.asarray(imu.accel_m_s2[lo:hi], dtype=np.float64)
+        gyro = np.asarray(imu.gyro_rad_s[lo:hi], dtype=np.float64)
+        dt_s = float(np.median(np.diff(ts))) / 1e9
+        if not dt_s > 0:
+            return "IMU stamps not increasing"
+        return cls(ts, acc, gyro, dt_s)
+
+
+def _cabin_motion(
+    samples: _Samples, start_ns: int, end_ns: int, span: int
+) -> tuple[int, int, npt.NDArray[np.bool_], npt.NDArray[np.bool_], int] | RideHeight:
+    """The padded span of the cabin's motion (t0, t1), the stand-still windows before and after
+    it and the smoothing length in samples; or the skipped RideHeight, with the reason."""
+    ts, acc, gyro, dt_s = samples.ts, samples.acc, samples.gyro, samples.dt_s
     # Find the cabin's acceleration and deceleration in the smoothed specific force along up
     # (driving adds vibration to |f| but little along up) inside the searched span.
     inside = (ts >= start_ns - span) & (ts <= end_ns + span)
@@ -153,35 +216,40 @@ def ride_height(
         if (float(np.linalg.norm(gyro[win], axis=1).mean()) > STILL_GYRO_RAD_S
                 or float(norm[win].std()) > STILL_ACCEL_STD_M_S2):
             return RideHeight(t0, t1, None, 0.0, f"robot not standing still {name} the ride")
+    return t0, t1, pre, post, n_smooth
 
-    # Up in the IMU frame and g + bias along it, from the stand-still windows. The bias is held
-    # constant over the ride: interpolating between the two windows would add their noise as a
-    # slope, which the zero-velocity update cannot remove (it removes a constant only).
-    still = pre | post
+
+def _along_up(acc: F64, still: npt.NDArray[np.bool_]) -> tuple[F64, float, float] | str:
+    """The specific force along up, and g + bias along it and its noise at rest; or why not.
+
+    Up in the IMU frame and g + bias along it, from the stand-still windows. The bias is held
+    constant over the ride: interpolating between the two windows would add their noise as a
+    slope, which the zero-velocity update cannot remove (it removes a constant only).
+    """
     up = acc[still].mean(axis=0)
     g_norm = float(np.linalg.norm(up))
-    if abs(g_norm - 9.80665) > 0.8:
+    if abs(g_norm - STANDARD_GRAVITY_M_S2) > 0.8:
         # Gravity removed by the driver, or units other than m/s^2: no up to integrate along.
-        return RideHeight(t0, t1, None, 0.0, f"IMU reads {g_norm:.2f} m/s^2 at rest, not gravity")
+        return f"IMU reads {g_norm:.2f} m/s^2 at rest, not gravity"
     up /= g_norm
     f_up = acc @ up
     g_still = float(f_up[still].mean())
     noise = float(f_up[still].std())
+    return f_up, g_still, noise
 
-    ride = (ts >= t0) & (ts <= t1)
-    if float(np.diff(ts[ride]).max(initial=0)) / 1e9 > 0.1:
-        return RideHeight(t0, t1, None, 0.0, "IMU samples missing during the ride")
-    a_all = f_up - g_still
-    # The window hugs the motion: from the first to the last sample whose smoothed acceleration
-    # stands out of the stand-still noise, searched within the padded window.
-    quiet = max(QUIET_SIGMAS * noise / math.sqrt(n_smooth), QUIET_MIN_M_S2)
-    active = np.abs(_moving_mean(a_all, n_smooth)) > quiet
-    i_lo, i_hi = int(np.flatnonzero(ride)[0]), int(np.flatnonzero(ride)[-1]) + 1
-    pad = round(TIGHT_PAD_S / dt_s)
-    ends = _quiet_ends(active, i_lo, i_hi, pad)
-    if ends is None:
-        return RideHeight(t0, t1, None, 0.0, "no vertical acceleration found")
-    a, b = ends
+
+def _integrate_legs(
+    samples: _Samples,
+    a_all: F64,
+    active: npt.NDArray[np.bool_],
+    window: tuple[int, int],
+    pad: int,
+    noise: float,
+) -> tuple[float, float, float, int]:
+    """The height change over the integration window [a, b], move by move: the summed height,
+    its variance, the largest speed left at a move's end, and the moves integrated."""
+    ts, dt_s = samples.ts, samples.dt_s
+    a, b = window
     tr = (ts[a : b + 1] - ts[a]) / 1e9
     _, v, _ = _bridge(a_all[a : b + 1], tr)
 
@@ -189,7 +257,7 @@ def ride_height(
     # move between them is integrated with its own zero-velocity ends.
     slow = np.abs(v) < STOP_SPEED_M_S
     cuts = [a]
-    for r0, r1 in _runs(slow):
+    for r0, r1 in true_runs(slow):
         if r0 > 0 and r1 < slow.shape[0] and (r1 - r0) * dt_s >= STOP_S:
             cuts.append(a + (r0 + r1) // 2)
     cuts.append(b)
@@ -208,21 +276,7 @@ def ride_height(
         var += (noise * math.sqrt(dt_s)) ** 2 * float(tl[-1]) ** 3 / 12.0
         worst = max(worst, abs(end_speed))
         legs += 1
-    start, stop = int(ts[a]), int(ts[b])
-    if worst > MAX_END_SPEED_M_S:
-        return RideHeight(start, stop, None, 0.0,
-                          f"the cabin is not at rest at the end of the integration ({worst:.2f} m/s "
-                          "left): the accelerometer's bias changed or samples are missing",
-                          bias_m_s2=g_still - 9.80665, legs=legs, end_speed_m_s=worst)
-    sigma = math.hypot(math.sqrt(var), SIGMA_FLOOR_M)
-    return RideHeight(start, stop, height, sigma, "ok", bias_m_s2=g_still - 9.80665, legs=legs,
-                      end_speed_m_s=worst)
-
-
-def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
-    padded = np.concatenate(([0], mask.astype(np.int8), [0]))
-    edges = np.flatnonzero(np.diff(padded))
-    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+    return height, var, worst, legs
 
 
 # Accelerating, cruising and braking of one ride: bursts of vertical acceleration closer than

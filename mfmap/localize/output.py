@@ -25,7 +25,7 @@ import numpy as np
 
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.export.files import tum_text, write_bytes, write_json, write_text
-from mfmap.localize.run import Status
+from mfmap.localize.records import Status
 
 if TYPE_CHECKING:
     from mfmap.localize.mapfolder import BuildingMap

@@ -15,7 +15,7 @@ from mfmap.export.files import read_ply, rotation_to_quat_xyzw, tum_text, write_
 from mfmap.export.floorsjson import floors_json
 from mfmap.export.grid import FREE, OCCUPIED, UNKNOWN, precision_recall, rasterise
 from mfmap.export.mapdata import MapAccumulator
-from mfmap.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
+from tests.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,6 @@ import warnings
 import numpy as np
 
 from mfmap.export.write import Trajectory
-from mfmap.graph.synthetic import pose_xyyaw
 from mfmap.pipeline import (
     _Cabin,
     _deskew,
@@ -19,6 +18,7 @@ from mfmap.pipeline import (
     single_floor,
 )
 from mfmap.types import Extrinsics, ImuSeries, Keyframe, OdomSeries
+from tests.graph.synthetic import pose_xyyaw
 
 
 def test_cabin_filter_drops_the_cabin_and_what_is_seen_through_it() -> None:

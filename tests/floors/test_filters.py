@@ -40,7 +40,9 @@ def test_rts_speed_on_a_steady_climb() -> None:
     assert abs(float(np.mean(speed[100:-100])) - 0.35) < 0.01
 
 
-def test_sliding_mean_is_the_trailing_mean_of_seed_000() -> None:
+def test_sliding_mean_is_a_trailing_mean_shortened_at_the_start() -> None:
+    """The LeGO-LOAM elevator paper's baseline filter: each sample the mean of it and the ones
+    before it within the window."""
     x = np.arange(10, dtype=np.float64)
     out = sliding_mean(x, 3)
     assert out.tolist() == [0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]

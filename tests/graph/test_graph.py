@@ -1,8 +1,9 @@
-"""The building graph on a synthetic building with known truth (see mfmap/graph/synthetic.py)."""
+"""The building graph on a synthetic building with known truth (see tests/graph/synthetic.py)."""
 
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import gtsam
@@ -13,7 +14,7 @@ from mfmap.graph.barometer import pressure_to_height_m
 from mfmap.graph.config import GraphConfig
 from mfmap.graph.interfloor import register_floors
 from mfmap.graph.optimize import GraphResult, optimize_building
-from mfmap.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
+from tests.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
 
 FLOOR_HEIGHT_M = 4.0
 
@@ -135,7 +136,7 @@ def test_without_barometer_z_comes_from_the_transitions(building: SyntheticBuild
 
 
 def test_registration_recovers_a_known_offset(building: SyntheticBuilding) -> None:
-    from mfmap.graph.optimize import floor_points
+    from mfmap.graph.floorlinks import floor_points
 
     b = building
     gt = b.gt_poses
@@ -171,8 +172,8 @@ def test_floor_icp_holds_z_and_recovers_x_y_yaw(building: SyntheticBuilding) -> 
     horizontal normals leave z unmeasured, and open3d's six-degree fit ran away on it."""
     import open3d as o3d
 
+    from mfmap.graph.floorlinks import floor_points
     from mfmap.graph.interfloor import _cloud, _Target, project_xyyaw
-    from mfmap.graph.optimize import floor_points
 
     b = building
     lower = floor_points(b.keyframes, b.gt_poses, 0, (0.5, 1.5), 0.0)
@@ -202,7 +203,7 @@ mfmap.limit_threads()  # as `mfmap build` does: one thread, so the two runs can 
 import numpy as np
 from mfmap.graph.config import GraphConfig
 from mfmap.graph.optimize import optimize_building
-from mfmap.graph.synthetic import make_building
+from tests.graph.synthetic import make_building
 from mfmap.mapping.workers import worker_pool
 
 if __name__ == "__main__":
@@ -234,8 +235,11 @@ def test_floor_pairs_registered_in_worker_processes_give_the_same_graph(tmp_path
 
     script = tmp_path / "pool_check.py"
     script.write_text(_POOL_CHECK)
+    # The script imports the synthetic building from tests/: the project's root on its path.
+    root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
     out = subprocess.run([sys.executable, str(script), str(FLOOR_HEIGHT_M)], capture_output=True,
-                         text=True, check=True, timeout=300)
+                         text=True, check=True, timeout=300, env=env)
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["accepted"] == [True, True]
     assert result["same_matches"]

@@ -15,10 +15,10 @@ from mfmap.config import MfmapConfig
 from mfmap.graph.config import GraphConfig
 from mfmap.graph.optimize import optimize_building
 from mfmap.graph.ride import ride_height
-from mfmap.graph.synthetic import START_NS, make_building, ride_imu
 from mfmap.ingest import open_log
 from mfmap.pipeline import segment_floors
 from mfmap.types import ImuSeries, PressureSeries
+from tests.graph.synthetic import START_NS, make_building, ride_imu
 
 RIDE_NS = (START_NS, START_NS + 15 * 10**9)
 

@@ -10,12 +10,12 @@ import pytest
 from gtsam.symbol_shorthand import X
 
 from mfmap.graph.config import GraphConfig
-from mfmap.graph.optimize import _Builder
+from mfmap.graph.factors import Builder
 
 
 def _solve(pitch_deg: float, world_dz: bool) -> float:
     """z_b - z_a after optimising: a fixed and pitched, b 7 m ahead (a stair walk's run)."""
-    builder = _Builder(GraphConfig())
+    builder = Builder(GraphConfig())
     pitch = gtsam.Rot3.Ry(math.radians(pitch_deg))
     a = gtsam.Pose3(pitch, np.zeros(3))
     builder.add("prior", gtsam.PriorFactorPose3(X(0), a, gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)),

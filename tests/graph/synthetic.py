@@ -1,6 +1,6 @@
 """A small synthetic building as the mapping stage would hand it on, with its ground truth.
 
-Used by the graph and export tests and benchmarks to exercise the building graph without running
+Used by the graph and export tests to exercise the building graph without running
 the lidar pipeline: walls per floor (outer walls and an elevator shaft shared by every floor, one
 interior wall that differs per floor), a route with elevator rides, keyframe clouds ray-cast
 against the walls (so occlusion is real), noisy drifting odometry between keyframes, loop edges
@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mfmap.graph.barometer import GAS_CONSTANT_DRY_AIR, GRAVITY_M_S2
 from mfmap.types import (
     F64,
     Floor,
@@ -28,6 +27,11 @@ from mfmap.types import (
     Transition,
     TransitionKind,
 )
+
+# The test world's air: an isothermal atmosphere, p = p0 exp(-z g / (R T)), not the estimator's
+# hypsometric relation with a lapse rate (mfmap.baro), so the two do not share a model.
+GAS_CONSTANT_DRY_AIR = 287.05  # J / (kg K)
+GRAVITY_M_S2 = 9.80665
 
 START_NS = 1_700_000_000 * 10**9
 SHARED_WALLS = np.array(

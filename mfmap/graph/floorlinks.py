@@ -1,0 +1,193 @@
+"""Factors that hold the floors together: each floor's level, adjacent floors registered on
+each other, and weak bridges where nothing else connects two parts of the graph."""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from collections.abc import Sequence
+from concurrent.futures import Executor
+from typing import Any
+
+import gtsam
+import numpy as np
+
+from mfmap.graph.config import GraphConfig
+from mfmap.graph.factors import (
+    FREE_SIGMA,
+    LEVEL_KPA,
+    LOOSE_TILT_RAD,
+    Builder,
+    Fl,
+    X,
+    relative_level,
+    robust_model,
+)
+from mfmap.graph.interfloor import FloorMatch, register_floors
+from mfmap.types import F64, FloorSegmentation, Keyframe
+
+
+def floor_points(
+    keyframes: Sequence[Keyframe],
+    poses: dict[int, F64],
+    floor_id: int,
+    band_m: tuple[float, float],
+    floor_z_m: float,
+) -> np.ndarray:
+    """World points of a floor's keyframes within a height band, z made floor-relative."""
+    chunks = []
+    for kf in keyframes:
+        if kf.floor_id != floor_id or len(kf.cloud) == 0:
+            continue
+        pose = poses[kf.id]
+        pts = kf.cloud.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+        rel = pts[:, 2] - floor_z_m
+        keep = (rel >= band_m[0]) & (rel <= band_m[1])
+        sel = pts[keep]
+        sel[:, 2] -= floor_z_m
+        chunks.append(sel)
+    if not chunks:
+        return np.zeros((0, 3))
+    return np.concatenate(chunks)
+
+
+def median_floor_z(keyframes: Sequence[Keyframe], poses: dict[int, F64]) -> dict[int, float]:
+    by_floor: dict[int, list[float]] = {}
+    for kf in keyframes:
+        if kf.floor_id >= 0:
+            by_floor.setdefault(kf.floor_id, []).append(float(poses[kf.id][2, 3]))
+    return {f: float(np.median(z)) for f, z in sorted(by_floor.items())}
+
+
+def _components(ids: list[int], links: list[tuple[int, int]]) -> dict[int, int]:
+    parent = {i: i for i in ids}
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in links:
+        if a in parent and b in parent:
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+    return {i: find(i) for i in ids}
+
+
+def add_height_ties(
+    builder: Builder, values: Any, kfs: list[Keyframe], initial: dict[int, F64]
+) -> None:
+    """Every keyframe of a floor shares that floor's z: a floor level f<id> tied to each.
+
+    A star, not a chain, so the tie does not let z wander from keyframe to keyframe. Each tie is
+    a world-z factor (robust; LEVEL_KPA). A BetweenFactorPose3 with only z tight would measure z
+    in the floor variable's frame, through SE(3)'s log that mixes rotation into translation: a
+    keyframe's tilt times its distance from the floor variable (tens of metres) becomes
+    centimetres of height (6 cm off their floor's level for the keyframes of the simulator's
+    tiny-2d building).
+    """
+    sig = builder.config.height_tie_sigma_m
+    model = robust_model(builder.config, gtsam.noiseModel.Isotropic.Sigma(1, sig))
+    for kf in kfs:
+        if kf.floor_id < 0:
+            continue
+        if not values.exists(Fl(kf.floor_id)):
+            values.insert(Fl(kf.floor_id), -float(initial[kf.id][2, 3]))
+        builder.add("height_tie", gtsam.BarometricFactor(X(kf.id), Fl(kf.floor_id), LEVEL_KPA, model), np.eye(1) / sig)
+
+
+def _anchors(
+    kfs: list[Keyframe], lower: int, upper: int, seg: FloorSegmentation | None
+) -> tuple[Keyframe, Keyframe]:
+    """The middle keyframes of the two visits joined by a ride between the floors.
+
+    Not the keyframes at the ride itself: those are taken in and at the cabin, where the mapping
+    stage's poses are least reliable, and an anchor there would carry its error to the floor.
+    """
+    low = [k for k in kfs if k.floor_id == lower]
+    up = [k for k in kfs if k.floor_id == upper]
+
+    def middle_of_visit(cands: list[Keyframe], near_ns: int) -> Keyframe:
+        closest = min(cands, key=lambda k: abs(k.stamp_ns - near_ns))
+        same = [k for k in cands if k.visit == closest.visit]
+        return same[len(same) // 2]
+
+    if seg is not None:
+        for tr in seg.transitions:
+            if {tr.from_floor, tr.to_floor} == {lower, upper}:
+                mid = (tr.start_ns + tr.end_ns) // 2
+                return middle_of_visit(low, mid), middle_of_visit(up, mid)
+    return low[len(low) // 2], up[len(up) // 2]
+
+
+def add_interfloor(
+    builder: Builder,
+    kfs: list[Keyframe],
+    initial: dict[int, F64],
+    floor_ids: list[int],
+    seg: FloorSegmentation | None,
+    config: GraphConfig,
+    executor: Executor | None = None,
+) -> list[FloorMatch]:
+    floor_z = median_floor_z(kfs, initial)
+    clouds = {
+        f: floor_points(kfs, initial, f, config.interfloor_band_m, floor_z[f]) for f in floor_ids
+    }
+    if any(len(c) < 200 for c in clouds.values()):
+        # A 2D scanner's returns all lie at its own height, usually below the band: use them all.
+        clouds = {f: floor_points(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
+    yaw = math.radians(config.interfloor_sigma_yaw_deg)
+    sig_xy = config.interfloor_sigma_xy_m
+    tilt = LOOSE_TILT_RAD
+    register = functools.partial(
+        register_floors,
+        voxel_m=config.interfloor_voxel_m,
+        min_fitness=config.interfloor_min_fitness,
+        ambiguity_ratio=config.interfloor_ambiguity_ratio,
+        max_correction_m=config.interfloor_max_correction_m,
+        max_correction_deg=config.interfloor_max_correction_deg,
+        seed=config.seed,
+    )
+    pairs = list(itertools.pairwise(floor_ids))
+    if executor is not None and len(pairs) > 1:
+        # Each pair on its own (one thread per process, the same seed): the same matches.
+        futures = [executor.submit(register, clouds[lower], clouds[upper], lower, upper)
+                   for lower, upper in pairs]
+        matches = [future.result() for future in futures]
+    else:
+        matches = [register(clouds[lower], clouds[upper], lower, upper) for lower, upper in pairs]
+    for (lower, upper), match in zip(pairs, matches, strict=True):
+        if not match.accepted:
+            builder.reject("interfloor")
+            continue
+        a, b = _anchors(kfs, lower, upper, seg)
+        target_b = match.correction @ initial[b.id]
+        measured = relative_level(initial[a.id], target_b, None)
+        builder.between(
+            "interfloor", a.id, b.id, measured, [tilt, tilt, yaw, sig_xy, sig_xy, FREE_SIGMA],
+            robust=False,
+        )
+    return matches
+
+
+def bridge_components(
+    builder: Builder, kfs: list[Keyframe], initial: dict[int, F64], warnings: list[str]
+) -> None:
+    """Link parts of the graph nothing else connects, weakly, at their initial relative pose."""
+    ids = [k.id for k in kfs]
+    comp = _components(ids, builder.links)
+    seen = {comp[ids[0]]}
+    for prev, kf in itertools.pairwise(kfs):
+        root = comp[kf.id]
+        if root in seen:
+            continue
+        seen.add(root)
+        measured = relative_level(initial[prev.id], initial[kf.id], None)
+        builder.between("bridge", prev.id, kf.id, measured, [0.1, 0.1, 0.1, 1.0, 1.0, FREE_SIGMA], robust=False)
+        warnings.append(
+            f"graph: keyframes {prev.id} and {kf.id} had no measurement linking them; "
+            "bridged weakly at the mapping stage's relative pose"
+        )
