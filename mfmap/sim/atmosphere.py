@@ -20,9 +20,9 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from mfmap.types import F64
+
 ArrayOrFloat = TypeVar("ArrayOrFloat", float, F64)
 
 # CODATA 2018 molar gas constant; molar masses of dry air (ISO 2533) and water.

@@ -33,8 +33,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
+from mfmap.types import F32, F64
 
 X_MIN, X_MAX, Y_MIN, Y_MAX = -4.0, 26.0, -16.0, 4.0
 OUTER_WALL_M = 0.3

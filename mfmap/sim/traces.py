@@ -16,12 +16,11 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.sim.atmosphere import CALM_AIR
-from mfmap.types import OdomSeries, PressureSeries
+from mfmap.types import F64, OdomSeries, PressureSeries
 
 if TYPE_CHECKING:
     from mfmap.sim.world import WorldSpec
 
-F64 = npt.NDArray[np.float64]
 
 ELEVATOR_SPEED_M_S = 1.0
 ELEVATOR_ACCEL_M_S2 = 0.5

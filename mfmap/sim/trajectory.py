@@ -18,8 +18,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.sim.building import Building, StairGeometry
+from mfmap.types import F64
 
-F64 = npt.NDArray[np.float64]
 FArr = npt.NDArray[np.floating[Any]]
 
 RATE_HZ = 200
