@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mfmap.sim.building import (
+from mfmap.sim.spec import (
     Block,
     BuildingSpec,
     Corridor,

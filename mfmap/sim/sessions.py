@@ -89,7 +89,7 @@ class Session:
         return path
 
 
-# ----- routes in the office block (see mfmap.sim.building's plan) ------------------------------
+# ----- routes in the office block (see mfmap.sim.spec's plan) ------------------------------
 
 P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
 W_NORTH, W_SOUTH = (-2.75, -1.0), (-2.75, -12.0)

@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.sim.building import Building, StairGeometry
+from mfmap.sim.building import Building
+from mfmap.sim.spec import StairGeometry
 from mfmap.types import F64
 
 FArr = npt.NDArray[np.floating[Any]]
