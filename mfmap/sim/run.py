@@ -15,6 +15,7 @@ from mfmap.errors import MfmapError, OutputError
 from mfmap.progress import NullProgress, Progress
 from mfmap.sim import groundtruth
 from mfmap.sim.building import Building
+from mfmap.sim.route import RouteBuilder
 from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec, building_for
 from mfmap.sim.sensors import (
     BARO_MOUNT,
@@ -32,7 +33,7 @@ from mfmap.sim.sensors import (
     Thermometer,
     WheelOdometry,
 )
-from mfmap.sim.trajectory import DT_S, RATE_HZ, RouteBuilder, Trajectory, quaternions
+from mfmap.sim.trajectory import DT_S, RATE_HZ, Trajectory, quaternions
 from mfmap.sim.world import World
 from mfmap.sim.writers import LogWriter, u8
 

@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mfmap.atomic import write_bytes_atomic
+from mfmap.sim.route import RouteBuilder
 from mfmap.sim.sensors import LidarSpec
-from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
 
 if TYPE_CHECKING:
