@@ -184,9 +184,3 @@ class Building:
                     yield p.astype(np.float32), self.floor_of_points(p[:, 2])
 
         return total, chunks()
-
-    def sample_surfaces(self, spacing_m: float, seed: int) -> tuple[F32, npt.NDArray[np.int32]]:
-        """All of `surface_samples` in memory: (N, 3) points and their floor ids."""
-        _, it = self.surface_samples(spacing_m, seed)
-        parts = list(it)
-        return np.concatenate([p for p, _ in parts]), np.concatenate([f for _, f in parts])
