@@ -30,6 +30,8 @@ Rect = tuple[float, float, float, float]  # x0, x1, y0, y1
 
 @dataclass
 class FloorGeometry:
+    """One floor: its index, its slab top's height and its boxes."""
+
     floor_id: int
     elevation_m: float
     boxes: list[Box] = field(default_factory=list)
