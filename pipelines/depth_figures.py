@@ -41,9 +41,9 @@ def _truth(seed: int) -> tuple[Any, list[Any], Any]:
 
     building = building_for(SCENARIOS["corridor-rgbd"], seed)
     boxes = building.static_boxes() + [building.landing_door(k) for k in range(building.n_floors)]
-    from mfmap.sim.building import _make_scene
+    from mfmap.sim.boxes import make_scene
 
-    return building, boxes, _make_scene(boxes)
+    return building, boxes, make_scene(boxes)
 
 
 def cloud_figures(build: Path, boxes: list[Any], scene: Any) -> dict[str, float]:
@@ -55,7 +55,7 @@ def cloud_figures(build: Path, boxes: list[Any], scene: Any) -> dict[str, float]
 
     ply = read_ply(build / "map.ply")
     xyz = np.column_stack([ply["x"], ply["y"], ply["z"]]).astype(np.float32)
-    tensor: Any = o3d.core.Tensor  # (as mfmap.sim.building does: open3d's stubs want a dtype)
+    tensor: Any = o3d.core.Tensor  # (as mfmap.sim.boxes does: open3d's stubs want a dtype)
     ans = scene.compute_closest_points(tensor(xyz))
     closest = ans["points"].numpy()
     dist = np.linalg.norm(closest - xyz, axis=1)
@@ -76,7 +76,7 @@ def cloud_figures(build: Path, boxes: list[Any], scene: Any) -> dict[str, float]
 
 def truth_cells(building: Any, floor_id: int, resolution_m: float, fixtures_only: bool) -> set[tuple[int, int]]:
     """Grid cells of the corridor that a surface occupies in the height band of a floor."""
-    from mfmap.sim.building import Kind
+    from mfmap.sim.boxes import Kind
 
     e = building.floors[floor_id].elevation_m
     cells: set[tuple[int, int]] = set()

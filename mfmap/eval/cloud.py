@@ -5,14 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from mfmap.eval.io import PointSet
 from mfmap.eval.metrics import threshold_label
-
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
+from mfmap.types import F32, F64, I64
 
 
 def nearest_distances_both(a: F32, b: F32) -> tuple[F64, F64]:

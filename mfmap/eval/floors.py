@@ -11,6 +11,9 @@ import numpy as np
 from mfmap.eval.io import FloorsFile, Trajectory, TransitionInfo
 from mfmap.eval.trajectory import pose_at
 
+# Each true transition with the estimated one matched to it, if any.
+Matched = list[tuple[TransitionInfo, TransitionInfo | None]]
+
 
 def match_floors(est: FloorsFile, gt: FloorsFile) -> dict[int, int]:
     """Estimated floor id -> ground-truth floor id, pairing by elevation (least total error)."""
@@ -151,6 +154,16 @@ def compare_floors(
         m["time_correct_share"] = share
         m["time_wrong_share"] = 1.0 - share
 
+    _elevation_errors(out, est, gt, to_est)
+    matched = match_transitions(est, gt, mapping, tolerance_s)
+    _transition_errors(m, est, gt, matched)
+    _inter_floor_errors(out, est, gt, matched, to_est, est_traj, gt_traj)
+    return out
+
+
+def _elevation_errors(out: FloorsComparison, est: FloorsFile, gt: FloorsFile, to_est: dict[int, int]) -> None:
+    """Each true floor's row and its matched floor's elevation error."""
+    m = out.metrics
     errors: list[float] = []
     for gf in gt.floors:
         row: dict[str, object] = {"id": gf.id, "gt_elevation_m": gf.elevation_m}
@@ -165,7 +178,9 @@ def compare_floors(
         m["elevation_error_max_m"] = float(np.max(np.abs(errors)))
         m["elevation_error_rmse_m"] = float(np.sqrt(np.mean(np.square(errors))))
 
-    matched = match_transitions(est, gt, mapping, tolerance_s)
+
+def _transition_errors(m: dict[str, float], est: FloorsFile, gt: FloorsFile, matched: Matched) -> None:
+    """Missed and extra transitions, and the largest start or end time error of the matched."""
     m["transitions_gt"] = float(len(gt.transitions))
     m["transitions_missed"] = float(sum(e is None for _, e in matched))
     m["transitions_extra"] = float(len(est.transitions) - sum(e is not None for _, e in matched))
@@ -178,6 +193,18 @@ def compare_floors(
     if dts:
         m["transition_time_error_max_s"] = float(max(dts))
 
+
+def _inter_floor_errors(
+    out: FloorsComparison,
+    est: FloorsFile,
+    gt: FloorsFile,
+    matched: Matched,
+    to_est: dict[int, int],
+    est_traj: Trajectory | None,
+    gt_traj: Trajectory | None,
+) -> None:
+    """Per pair of adjacent true floors: the rides' plan errors and the height error between them."""
+    m = out.metrics
     order = sorted(gt.floors, key=lambda f: f.elevation_m)
     sums: dict[str, list[float]] = {"dx_m": [], "dy_m": [], "dyaw_deg": [], "dz_m": [], "dz_pct": []}
     for lo, hi in itertools.pairwise(order):
@@ -210,4 +237,3 @@ def compare_floors(
     for key, values in sums.items():
         if values:
             m[f"inter.{key}"] = float(np.mean(values))
-    return out

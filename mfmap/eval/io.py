@@ -18,9 +18,7 @@ import numpy.typing as npt
 
 from mfmap.atomic import atomic_open
 from mfmap.errors import GroundTruthError, MfmapError, OutputError, read_text
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
+from mfmap.types import F64, I64
 
 POINTS_COLUMNS = ("label", "floor", "x", "y", "z", "t_start", "t_end")
 INCOMPLETE_MARKER = ".incomplete"

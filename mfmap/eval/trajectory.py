@@ -5,12 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from mfmap.eval.io import Trajectory
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
+from mfmap.types import F64, I64
 
 
 def associate(stamps_a: F64, stamps_b: F64, max_diff_s: float) -> tuple[I64, I64]:

@@ -47,7 +47,24 @@ def floors_json(
             item.update({"x": round(start[0], 4), "y": round(start[1], 4),
                          "x_end": round(end[0], 4), "y_end": round(end[1], 4)})
         transitions.append(item)
+    connectors = _connectors(transitions)
+    floors = []
+    for floor in seg.floors:
+        floors.append(
+            {
+                "id": floor.id,
+                "elevation_m": round(elevation_m.get(floor.id, floor.elevation_m), 4),
+                "pressure_pa": round(floor.pressure_pa, 2),
+                "visits": [[s / 1e9, e / 1e9] for s, e in floor.visits],
+                "connectors": [c["id"] for c in connectors if floor.id in c["floors"]],
+            }
+        )
+    return {"floors": floors, "transitions": transitions, "connectors": connectors}
 
+
+def _connectors(transitions: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Group the placed transitions into elevators and stairwells by their midpoints; each
+    transition gets its connector's id."""
     connectors: list[dict[str, Any]] = []
     members: list[list[tuple[float, float]]] = []
     for item in transitions:
@@ -68,16 +85,4 @@ def floors_json(
             connectors.append(conn)
             members.append([mid])
             item["connector"] = conn["id"]
-
-    floors = []
-    for floor in seg.floors:
-        floors.append(
-            {
-                "id": floor.id,
-                "elevation_m": round(elevation_m.get(floor.id, floor.elevation_m), 4),
-                "pressure_pa": round(floor.pressure_pa, 2),
-                "visits": [[s / 1e9, e / 1e9] for s, e in floor.visits],
-                "connectors": [c["id"] for c in connectors if floor.id in c["floors"]],
-            }
-        )
-    return {"floors": floors, "transitions": transitions, "connectors": connectors}
+    return connectors

@@ -136,7 +136,16 @@ def html_report(
     parts.append(_table([[k, v] for k, v in summary.items()], ["", "value"]))
     if view is not None:
         parts.append(view)
-    parts.append("<h2>Floors</h2>")
+    parts += _floors_section(floors_doc)
+    parts += _graph_section(report.get("graph", {}))
+    parts += _closing_sections(report, pressure_png, side_png, grid_pngs)
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _floors_section(floors_doc: dict[str, Any]) -> list[str]:
+    """The floors and the transitions between them."""
+    parts = ["<h2>Floors</h2>"]
     parts.append(
         _table(
             [[f["id"], f["elevation_m"], f["pressure_pa"], len(f["visits"]), f["connectors"]]
@@ -151,9 +160,13 @@ def html_report(
             ["transition", "from", "to", "duration [s]", "height change [m]", "x", "y"],
         )
     )
-    graph = report.get("graph", {})
+    return parts
+
+
+def _graph_section(graph: dict[str, Any]) -> list[str]:
+    """The factor graph's factors, the heights and the inter-floor matches."""
     factors = graph.get("factors", {})
-    parts.append("<h2>Factor graph</h2>")
+    parts = ["<h2>Factor graph</h2>"]
     parts.append(
         _table(
             [[k, v["count"], v["error_initial"], v["error_final"], v["outliers"], v["rejected"]]
@@ -170,8 +183,15 @@ def html_report(
                 ["lower", "upper", "accepted", "reason", "fitness", "dx [m]", "dy [m]", "dyaw [deg]"],
             )
         )
+    return parts
+
+
+def _closing_sections(
+    report: dict[str, Any], pressure_png: bytes | None, side_png: bytes, grid_pngs: dict[int, bytes]
+) -> list[str]:
+    """Timings, warnings and the images."""
     timings = report.get("timings_s", {})
-    parts.append("<h2>Timings</h2>")
+    parts = ["<h2>Timings</h2>"]
     parts.append(_table([[k, v] for k, v in timings.items()], ["stage", "seconds"]))
     if report.get("warnings"):
         parts.append("<h2>Warnings</h2><ul>")
@@ -182,5 +202,4 @@ def html_report(
     parts.append("<h2>Side view</h2>" + _png_tag(side_png, "side view"))
     for floor_id, png in sorted(grid_pngs.items()):
         parts.append(f"<h2>Floor {floor_id} grid</h2>" + _png_tag(png, f"floor {floor_id} grid"))
-    parts.append("</body></html>")
-    return "\n".join(parts)
+    return parts

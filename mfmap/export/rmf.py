@@ -89,32 +89,7 @@ def building_yaml(name: str, floors_doc: dict[str, Any], grids: dict[int, dict[s
     levels: dict[str, Any] = {}
     for floor in floors_doc["floors"]:
         fid = floor["id"]
-        level: dict[str, Any] = {"elevation": float(floor["elevation_m"])}
-        grid = grids.get(fid)
-        if grid is not None:
-            res = float(grid["resolution"])
-            level["layers"] = {"grid": {
-                "filename": grid["image"],
-                "visible": True,
-                "color": [0.0, 0.0, 1.0, 0.5],
-                # Pixel (col, row) at (tx + col * scale, ty - row * scale): row 0 is the top.
-                "transform": {"scale": res, "yaw": 0.0,
-                              "translation_x": round(float(grid["origin"][0]), 4),
-                              "translation_y": round(float(grid["origin"][1]) + grid["height"] * res, 4)},
-            }}
-        else:
-            warnings.append(f"building.yaml: floor {fid} has no grid; its level has no map image")
-        vertices = []
-        for conn in poses.get(fid, []):
-            for when in ("depart", "arrive"):
-                if when not in conn:
-                    continue
-                p = conn[when]
-                vertices.append([p["x"], p["y"], 0.0, f"{conn['kind']}_{conn['id']}_{when}_{level_name(fid)}",
-                                 {"connector": [_STRING, conn["kind"]], "connector_id": [_INT, conn["id"]]}])
-        level.update({"vertices": vertices, "lanes": [], "walls": [], "doors": [], "measurements": [],
-                      "models": [], "floors": [], "holes": [], "fiducials": []})
-        levels[level_name(fid)] = level
+        levels[level_name(fid)] = _level(floor, grids.get(fid), poses.get(fid, []), warnings)
     lifts: dict[str, Any] = {}
     for cabin in cabins:
         made = _lift(len(lifts), cabin, floor_ids)
@@ -136,3 +111,34 @@ def building_yaml(name: str, floors_doc: dict[str, Any], grids: dict[int, dict[s
         "lifts": lifts,
     }
     return doc, warnings
+
+
+def _level(floor: dict[str, Any], grid: dict[str, Any] | None, connectors: list[dict[str, Any]],
+           warnings: list[str]) -> dict[str, Any]:
+    """One floor's level: its elevation, its grid image as a layer, its connector poses."""
+    fid = floor["id"]
+    level: dict[str, Any] = {"elevation": float(floor["elevation_m"])}
+    if grid is not None:
+        res = float(grid["resolution"])
+        level["layers"] = {"grid": {
+            "filename": grid["image"],
+            "visible": True,
+            "color": [0.0, 0.0, 1.0, 0.5],
+            # Pixel (col, row) at (tx + col * scale, ty - row * scale): row 0 is the top.
+            "transform": {"scale": res, "yaw": 0.0,
+                          "translation_x": round(float(grid["origin"][0]), 4),
+                          "translation_y": round(float(grid["origin"][1]) + grid["height"] * res, 4)},
+        }}
+    else:
+        warnings.append(f"building.yaml: floor {fid} has no grid; its level has no map image")
+    vertices = []
+    for conn in connectors:
+        for when in ("depart", "arrive"):
+            if when not in conn:
+                continue
+            p = conn[when]
+            vertices.append([p["x"], p["y"], 0.0, f"{conn['kind']}_{conn['id']}_{when}_{level_name(fid)}",
+                             {"connector": [_STRING, conn["kind"]], "connector_id": [_INT, conn["id"]]}])
+    level.update({"vertices": vertices, "lanes": [], "walls": [], "doors": [], "measurements": [],
+                  "models": [], "floors": [], "holes": [], "fiducials": []})
+    return level

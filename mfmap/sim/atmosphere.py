@@ -20,9 +20,9 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from mfmap.types import F64
+
 ArrayOrFloat = TypeVar("ArrayOrFloat", float, F64)
 
 # CODATA 2018 molar gas constant; molar masses of dry air (ISO 2533) and water.
@@ -80,15 +80,6 @@ class AirColumn:
         t0, gam = self.virtual_temperature_k, self.gradient_k_per_m
         h = integral * t0 if abs(gam) < 1e-12 else np.expm1(gam * integral) * t0 / gam
         return h if isinstance(p_pa, np.ndarray) else float(h)
-
-    def density_kg_m3(self, p_pa: float, h_m: float = 0.0) -> float:
-        t = self.virtual_temperature_k + self.gradient_k_per_m * h_m
-        return p_pa / (R_DRY_AIR_J_PER_KG_K * t)
-
-    def temperature_k_at(self, h_m: ArrayOrFloat) -> ArrayOrFloat:
-        """Virtual temperature at `h_m`."""
-        t = self.virtual_temperature_k + self.gradient_k_per_m * np.asarray(h_m, dtype=np.float64)
-        return t if isinstance(h_m, np.ndarray) else float(t)
 
 
 # The air of the simulator's calm building: 295 K, dry, standard gravity.

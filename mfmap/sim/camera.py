@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mfmap.sim.building import Box, Kind, cast_rays
+from mfmap.sim.boxes import Box, Kind, cast_rays
 from mfmap.sim.sensors import Mount, Scenes
 from mfmap.sim.trajectory import rotation_matrices
 

@@ -111,7 +111,6 @@ def floors_document(
 ) -> dict[str, Any]:
     ids = floor_ids(traj)
     visited = sorted(ids)
-    all_floors = list(range(building.n_floors))
     gt_ids = [ids[k] for k in visited]
     sx0, sx1, sy0, sy1 = building.stair_rect
     stair_xy = ((sx0 + sx1) / 2, (sy0 + sy1) / 2)
@@ -138,7 +137,17 @@ def floors_document(
                 "connectors": [0, 1],
             }
         )
-    transitions = [
+    return {
+        "floors": floors,
+        "transitions": _transitions(traj, ids, start_ns),
+        "connectors": connectors,
+        "sim": _sim_section(spec, building, traj, baro, start_ns, seed),
+    }
+
+
+def _transitions(traj: Trajectory, ids: dict[int, int], start_ns: int) -> list[dict[str, Any]]:
+    """gt_floors.json's transitions: floor ids, epoch times, where they start and end."""
+    return [
         {
             "kind": tr.kind,
             "from": ids[tr.from_floor],
@@ -154,34 +163,38 @@ def floors_document(
         }
         for tr in traj.transitions
     ]
+
+
+def _sim_section(
+    spec: ScenarioSpec, building: Building, traj: Trajectory, baro: Barometer, start_ns: int, seed: int
+) -> dict[str, Any]:
+    """What the simulator knows beyond the floors: the building, the air, the barometer's
+    drift and transients, the doors."""
+    world = baro.world
+    all_floors = list(range(building.n_floors))
     return {
-        "floors": floors,
-        "transitions": transitions,
-        "connectors": connectors,
-        "sim": {
-            "scenario": spec.name,
-            "seed": seed,
-            "start_ns": start_ns,
-            "building": building.spec.name,
-            "floor_height_m": building.floor_height_m if building.uniform else None,
-            "storey_heights_m": list(building.storeys_m),
-            "elevations_m": [round(building.elevation(k), 6) for k in all_floors],
-            "stairwell": building.spec.stairwell.kind,
-            "reference_pressure_pa": round(baro.p0_pa, 3),
-            "temperature_k": baro.air.virtual_temperature_k,
-            "temperature_gradient_k_per_m": baro.air.gradient_k_per_m,
-            "gravity_m_s2": baro.air.gravity_m_s2,
-            "baro_height_above_base_m": BARO_MOUNT.xyz[2],
-            "drift_pa_per_h": baro.drift_sign * baro.spec.drift_pa_per_h,
-            "pressure_transients": [
-                [epoch_s(start_ns, t0), epoch_s(start_ns, t1), round(dp, 3)] for t0, t1, dp in baro.transients
-            ],
-            "door_open": [[epoch_s(start_ns, t0), epoch_s(start_ns, t1), f] for t0, t1, f in traj.door_open],
-            "world": None if world is None else world.document(building),
-            "door_pulses": []
-            if world is None
-            else [[epoch_s(start_ns, t0), round(dp, 3)] for t0, dp in world.door_pulses],
-        },
+        "scenario": spec.name,
+        "seed": seed,
+        "start_ns": start_ns,
+        "building": building.spec.name,
+        "floor_height_m": building.floor_height_m if building.uniform else None,
+        "storey_heights_m": list(building.storeys_m),
+        "elevations_m": [round(building.elevation(k), 6) for k in all_floors],
+        "stairwell": building.spec.stairwell.kind,
+        "reference_pressure_pa": round(baro.p0_pa, 3),
+        "temperature_k": baro.air.virtual_temperature_k,
+        "temperature_gradient_k_per_m": baro.air.gradient_k_per_m,
+        "gravity_m_s2": baro.air.gravity_m_s2,
+        "baro_height_above_base_m": BARO_MOUNT.xyz[2],
+        "drift_pa_per_h": baro.drift_sign * baro.spec.drift_pa_per_h,
+        "pressure_transients": [
+            [epoch_s(start_ns, t0), epoch_s(start_ns, t1), round(dp, 3)] for t0, t1, dp in baro.transients
+        ],
+        "door_open": [[epoch_s(start_ns, t0), epoch_s(start_ns, t1), f] for t0, t1, f in traj.door_open],
+        "world": None if world is None else world.document(building),
+        "door_pulses": []
+        if world is None
+        else [[epoch_s(start_ns, t0), round(dp, 3)] for t0, dp in world.door_pulses],
     }
 
 

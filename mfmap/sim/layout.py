@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mfmap.sim.building import (
+from mfmap.sim.spec import (
     Block,
     BuildingSpec,
     Corridor,
@@ -98,7 +98,72 @@ def generate_building(seed: int, family: FamilySpec | None = None) -> BuildingSp
     raise ValueError(f"seed {seed}: no building of the family fits its draws")
 
 
+Cell = tuple[float, float, float, float, str]  # x0, x1, y0, y1, sides facing a corridor
+Walls = list[tuple[str, float, float, float]]
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """A drawn footprint W x D, its storeys, its corridors along x (their y spans) and along y
+    (their x spans), and the blocks between them."""
+
+    W: float
+    D: float
+    storeys: tuple[float, ...]
+    xc: list[tuple[float, float]]
+    yc: list[tuple[float, float]]
+    cells: list[Cell]
+
+
 def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> BuildingSpec | None:
+    grid = _draw_grid(rng, fam)
+    if grid is None:
+        return None
+    W, D, storeys, xc, yc, cells = grid.W, grid.D, grid.storeys, grid.xc, grid.yc, grid.cells
+    # The stairwell: a strip of a block beside an x corridor, long enough for the longest flight.
+    stair_cfg = StairwellSpec(kind="switchback")
+    run = max(flight_geometry(stair_cfg, h).run_m for h in storeys)
+    half_landing = _u(rng, _HALF_LANDING_M)
+    stair_len = _FLOOR_LANDING_M + run + half_landing
+    order = list(rng.permutation(len(cells)))
+    stair = _place_stairwell(rng, cells, order, stair_len)
+    if stair is None:
+        return None
+    shaft = _place_shaft(rng, cells, order, stair)
+    if shaft is None:
+        return None
+    walls: Walls = []
+    carved: dict[int, list[tuple[float, float]]] = {}
+    stairwell, s_cy = _stairwell(rng, grid, stair_cfg, stair, walls, carved)
+    shaft_spec = _shaft(rng, fam, grid, shaft, walls, carved)
+    blocks = _room_blocks(cells, carved)
+    # Pillars along one side of wide corridors, clear of crossings, doors and the shaft.
+    keep_clear = [shaft_spec.front, (sum(stairwell.doors_x[0]) / 2, s_cy)]
+    pillars = _pillars(rng, grid, keep_clear)
+    corridors = [Corridor("x", (a + b) / 2, _END_INSET_M, W - _END_INSET_M, b - a) for a, b in xc]
+    corridors += [Corridor("y", (a + b) / 2, _END_INSET_M, D - _END_INSET_M, b - a) for a, b in yc]
+    picks = _checkpoints(rng, grid, corridors, keep_clear)
+    if picks is None:
+        return None
+    start = picks[0]
+    spec = BuildingSpec(
+        name=f"generated-{fam.storeys}{fam.n_floors[0]}{fam.n_floors[1]}-{seed}",
+        footprint=(0.0, W, 0.0, D),
+        storey_heights_m=storeys,
+        blocks=tuple(blocks),
+        shaft=shaft_spec,
+        stairwell=stairwell,
+        pillars=tuple(pillars),
+        extra_walls=tuple(walls),
+        corridors=tuple(corridors),
+        checkpoints=tuple((f"C{k + 1}", x, y) for k, (x, y) in enumerate(picks)),
+    )
+    return shift(spec, -start[0], -start[1])
+
+
+def _draw_grid(rng: np.random.Generator, fam: FamilySpec) -> _Grid | None:
+    """The footprint, the storeys and the corridors; the blocks are the grid cells between the
+    corridors and the outer walls. None when the corridors do not fit."""
     W = round(_u(rng, fam.width_m), 2)
     D = round(_u(rng, fam.depth_m), 2)
     n_floors = int(rng.integers(fam.n_floors[0], fam.n_floors[1] + 1))
@@ -117,12 +182,14 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
     for (x0, x1), (y0, y1) in itertools.product(zip(xs[::2], xs[1::2], strict=True), zip(ys[::2], ys[1::2], strict=True)):
         sides = "".join(s for s, edge in (("n", y1 < D), ("s", y0 > 0), ("w", x0 > 0), ("e", x1 < W)) if edge)
         cells.append((x0, x1, y0, y1, sides))
-    # The stairwell: a strip of a block beside an x corridor, long enough for the longest flight.
-    stair_cfg = StairwellSpec(kind="switchback")
-    run = max(flight_geometry(stair_cfg, h).run_m for h in storeys)
-    half_landing = _u(rng, _HALF_LANDING_M)
-    stair_len = _FLOOR_LANDING_M + run + half_landing
-    order = list(rng.permutation(len(cells)))
+    return _Grid(W, D, storeys, xc, yc, cells)
+
+
+def _place_stairwell(
+    rng: np.random.Generator, cells: list[Cell], order: list[int], stair_len: float
+) -> tuple[int, str, float, float] | None:
+    """(cell, door side, x0, x1) of the stairwell's strip: in the first block of `order` deep
+    and long enough, at its west or east end."""
     stair = None
     for i in order:
         x0, x1, y0, y1, sides = cells[i]
@@ -134,9 +201,14 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
         sx0 = x0 if at_west else x1 - stair_len
         stair = (i, side, sx0, sx0 + stair_len)
         break
-    if stair is None:
-        return None
-    # The shaft: another strip, in another block or beside the stairwell in the same one.
+    return stair
+
+
+def _place_shaft(
+    rng: np.random.Generator, cells: list[Cell], order: list[int], stair: tuple[int, str, float, float]
+) -> tuple[int, str, float] | None:
+    """(cell, door side, centre x) of the shaft: another strip, in another block or beside the
+    stairwell in the same one."""
     shaft = None
     for i in order:
         x0, x1, y0, y1, sides = cells[i]
@@ -158,24 +230,32 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
         side = opts[int(rng.integers(len(opts)))]
         shaft = (i, side, round(float(rng.uniform(lo, hi)), 3))
         break
-    if shaft is None:
-        return None
+    return shaft
 
-    def corridor_beside(cell: tuple[float, float, float, float, str], side: str) -> tuple[float, float]:
-        """(centre y, width) of the x corridor on a block's side."""
-        y = cell[3] if side == "n" else cell[2]
-        for a, b in xc:
-            if abs((a if side == "n" else b) - y) < 1e-9:
-                return (a + b) / 2, b - a
-        raise AssertionError("no corridor beside the block")
 
-    blocks: list[Block] = []
-    walls: list[tuple[str, float, float, float]] = []
-    carved: dict[int, list[tuple[float, float]]] = {}
-    # Stairwell geometry.
+def _corridor_beside(xc: list[tuple[float, float]], cell: Cell, side: str) -> tuple[float, float]:
+    """(centre y, width) of the x corridor on a block's side."""
+    y = cell[3] if side == "n" else cell[2]
+    for a, b in xc:
+        if abs((a if side == "n" else b) - y) < 1e-9:
+            return (a + b) / 2, b - a
+    raise AssertionError("no corridor beside the block")
+
+
+def _stairwell(
+    rng: np.random.Generator,
+    grid: _Grid,
+    stair_cfg: StairwellSpec,
+    stair: tuple[int, str, float, float],
+    walls: Walls,
+    carved: dict[int, list[tuple[float, float]]],
+) -> tuple[StairwellSpec, float]:
+    """The stairwell in its strip and the y of the corridor its door opens on; the strip is
+    carved out of its block and the void behind it walled."""
+    W, D = grid.W, grid.D
     si, sside, sx0, sx1 = stair
-    scell = cells[si]
-    s_cy, _ = corridor_beside(scell, sside)
+    scell = grid.cells[si]
+    s_cy, _ = _corridor_beside(grid.xc, scell, sside)
     door_y = scell[3] if sside == "n" else scell[2]
     out = 1.0 if sside == "n" else -1.0
     sy1, sy0 = (door_y, door_y - _STAIR_DEPTH_M) if sside == "n" else (door_y + _STAIR_DEPTH_M, door_y)
@@ -201,10 +281,22 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
     )
     carved.setdefault(si, []).append((sx0, sx1))
     _strip_walls(walls, scell, sx0, sx1, sy0, sy1, D)
-    # Shaft geometry.
+    return stairwell, s_cy
+
+
+def _shaft(
+    rng: np.random.Generator,
+    fam: FamilySpec,
+    grid: _Grid,
+    shaft: tuple[int, str, float],
+    walls: Walls,
+    carved: dict[int, list[tuple[float, float]]],
+) -> ShaftSpec:
+    """The elevator in its strip, the robot waiting for it on the corridor's centre line; the
+    strip is carved out of its block and the void behind it walled."""
     hi_, hside, hcx = shaft
-    hcell = cells[hi_]
-    h_cy, _ = corridor_beside(hcell, hside)
+    hcell = grid.cells[hi_]
+    h_cy, _ = _corridor_beside(grid.xc, hcell, hside)
     hy = hcell[3] - _SHAFT_HALF if hside == "n" else hcell[2] + _SHAFT_HALF
     shaft_spec = ShaftSpec(
         center=(hcx, hy),
@@ -214,8 +306,13 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
         acc_m_s2=round(_u(rng, fam.elevator_acc_m_s2), 2),
     )
     carved.setdefault(hi_, []).append((hcx - _SHAFT_HALF, hcx + _SHAFT_HALF))
-    _strip_walls(walls, hcell, hcx - _SHAFT_HALF, hcx + _SHAFT_HALF, hy - _SHAFT_HALF, hy + _SHAFT_HALF, D)
-    # Blocks of rooms: each cell, less its carved strips.
+    _strip_walls(walls, hcell, hcx - _SHAFT_HALF, hcx + _SHAFT_HALF, hy - _SHAFT_HALF, hy + _SHAFT_HALF, grid.D)
+    return shaft_spec
+
+
+def _room_blocks(cells: list[Cell], carved: dict[int, list[tuple[float, float]]]) -> list[Block]:
+    """Blocks of rooms: each cell, less its carved strips."""
+    blocks: list[Block] = []
     for i, (x0, x1, y0, y1, sides) in enumerate(cells):
         cuts = sorted(carved.get(i, []))
         edges = [x0, *[v for c in cuts for v in c], x1]
@@ -227,9 +324,13 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
                 s for s in sides if not (s == "w" and k > 0) and not (s == "e" and k < len(cuts))
             )
             blocks.append(Block(f"B{i}.{k}", a, b, y0, y1, keep))
-    # Pillars along one side of wide corridors, clear of crossings, doors and the shaft.
+    return blocks
+
+
+def _pillars(rng: np.random.Generator, grid: _Grid, keep_clear: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Pillars along one side of each wide x corridor, clear of crossings, doors and the shaft."""
+    W, xc, yc = grid.W, grid.xc, grid.yc
     pillars: list[tuple[float, float]] = []
-    keep_clear = [shaft_spec.front, (sum(door) / 2, s_cy)]
     for a, b in xc:
         if b - a < 2.4:
             continue
@@ -238,10 +339,15 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
             if any(abs(px - (c0 + c1) / 2) < 2.8 for c0, c1 in yc) or any(abs(px - q[0]) < 2.5 for q in keep_clear):
                 continue
             pillars.append((round(float(px), 3), round(py, 3)))
-    corridors = [Corridor("x", (a + b) / 2, _END_INSET_M, W - _END_INSET_M, b - a) for a, b in xc]
-    corridors += [Corridor("y", (a + b) / 2, _END_INSET_M, D - _END_INSET_M, b - a) for a, b in yc]
-    # Checkpoints: the start on an x corridor's crossing with a y corridor (facing +x, with the
-    # corridor ahead), then three more crossings or corridor ends, at least 6 m apart.
+    return pillars
+
+
+def _checkpoints(
+    rng: np.random.Generator, grid: _Grid, corridors: list[Corridor], keep_clear: list[tuple[float, float]]
+) -> list[tuple[float, float]] | None:
+    """The start on an x corridor's crossing with a y corridor (facing +x, with the corridor
+    ahead), then three more crossings or corridor ends, at least 6 m apart; None if they do not fit."""
+    W, D, xc, yc = grid.W, grid.D, grid.xc, grid.yc
     crossings = [((a + b) / 2, (c + d) / 2) for (c, d), (a, b) in itertools.product(xc, yc)]
     ends = [(_END_INSET_M, c.c) for c in corridors if c.axis == "x"] + [(W - _END_INSET_M, c.c) for c in corridors if c.axis == "x"]
     ends += [(c.c, _END_INSET_M) for c in corridors if c.axis == "y"] + [(c.c, D - _END_INSET_M) for c in corridors if c.axis == "y"]
@@ -259,19 +365,7 @@ def _try_generate(rng: np.random.Generator, fam: FamilySpec, seed: int) -> Build
             picks.append(p)
     if len(picks) < 4:
         return None
-    spec = BuildingSpec(
-        name=f"generated-{fam.storeys}{fam.n_floors[0]}{fam.n_floors[1]}-{seed}",
-        footprint=(0.0, W, 0.0, D),
-        storey_heights_m=storeys,
-        blocks=tuple(blocks),
-        shaft=shaft_spec,
-        stairwell=stairwell,
-        pillars=tuple(pillars),
-        extra_walls=tuple(walls),
-        corridors=tuple(corridors),
-        checkpoints=tuple((f"C{k + 1}", x, y) for k, (x, y) in enumerate(picks)),
-    )
-    return shift(spec, -start[0], -start[1])
+    return picks
 
 
 def _strip_walls(

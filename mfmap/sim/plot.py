@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from mfmap.atomic import atomic_path
-from mfmap.sim.building import SLAB_M, Building, Kind
+from mfmap.sim.boxes import Kind
+from mfmap.sim.building import Building
 from mfmap.sim.sensors import Barometer
+from mfmap.sim.spec import SLAB_M
 from mfmap.sim.trajectory import RATE_HZ, Trajectory
 
 _COLORS = {

@@ -15,6 +15,7 @@ from mfmap.errors import MfmapError, OutputError
 from mfmap.progress import NullProgress, Progress
 from mfmap.sim import groundtruth
 from mfmap.sim.building import Building
+from mfmap.sim.route import RouteBuilder
 from mfmap.sim.scenarios import SCENARIOS, ScenarioSpec, building_for
 from mfmap.sim.sensors import (
     BARO_MOUNT,
@@ -32,9 +33,10 @@ from mfmap.sim.sensors import (
     Thermometer,
     WheelOdometry,
 )
-from mfmap.sim.trajectory import DT_S, RATE_HZ, RouteBuilder, Trajectory, quaternions
+from mfmap.sim.trajectory import DT_S, RATE_HZ, Trajectory, quaternions
 from mfmap.sim.world import World
 from mfmap.sim.writers import LogWriter, u8
+from mfmap.types import F64
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +55,9 @@ BASE_FRAME = "base_link"
 ODOM_FRAME = "odom"
 IMU_RATE_HZ = 200
 ODOM_RATE_HZ = 50
+
+# Messages of one second, (stamp, order among equal stamps, topic, message), written sorted.
+Batch = list[tuple[int, int, str, Any]]
 
 
 @dataclass(frozen=True)
@@ -123,11 +128,7 @@ def simulate(
     progress = progress or NullProgress()
     t_wall = time.perf_counter()
     spec = SCENARIOS[scenario]
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise OutputError(f"cannot create the output folder ({err.strerror})", out) from err
+    out = _output_folder(Path(out_dir))
     reps = max(1, round(duration_scale))
     building = building_for(spec, seed)
     # A session of a building shares the building with its other sessions, not their day.
@@ -144,19 +145,8 @@ def simulate(
     paths = groundtruth.write_all(out, spec, building, traj, baro, start_ns, scan_times, seed)
     if spec.session is not None:
         paths["session"] = spec.session.write(out, scenario, seed, building, spec.start_floor, start_ns)
-    plots: list[Path] = []
-    if plot:
-        from mfmap.sim.plot import plot_floorplans, plot_pressure
-
-        plots = [
-            plot_floorplans(building, traj, out / "floorplans.png"),
-            plot_pressure(log_path, traj, baro, building, start_ns, out / "pressure.png"),
-        ]
-    size = (
-        sum(p.stat().st_size for p in log_path.rglob("*") if p.is_file())
-        if log_path.is_dir()
-        else log_path.stat().st_size
-    )
+    plots = _plots(out, log_path, building, traj, baro, start_ns) if plot else []
+    size = _log_bytes(log_path)
     return SimResult(
         scenario,
         fmt,
@@ -177,9 +167,63 @@ def simulate(
     )
 
 
+def _output_folder(out: Path) -> Path:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"cannot create the output folder ({err.strerror})", out) from err
+    return out
+
+
+def _plots(out: Path, log_path: Path, building: Building, traj: Trajectory, baro: Barometer, start_ns: int) -> list[Path]:
+    """Floor plans with the route, and the pressure trace against the floors."""
+    from mfmap.sim.plot import plot_floorplans, plot_pressure
+
+    return [
+        plot_floorplans(building, traj, out / "floorplans.png"),
+        plot_pressure(log_path, traj, baro, building, start_ns, out / "pressure.png"),
+    ]
+
+
+def _log_bytes(log_path: Path) -> int:
+    """Size of the log: its file, or every file of its folder (ROS 2 bags)."""
+    return (
+        sum(p.stat().st_size for p in log_path.rglob("*") if p.is_file())
+        if log_path.is_dir()
+        else log_path.stat().st_size
+    )
+
+
 def _stamp(start_ns: int, t_s_num: int, rate_hz: int) -> int:
     """Stamp of message number t_s_num of a stream at rate_hz (exact integer arithmetic)."""
     return start_ns + (t_s_num * 1_000_000_000) // rate_hz
+
+
+@dataclass
+class _Sensors:
+    """The log's sensors, each drawing its own noise from the seed."""
+
+    lidar: Lidar | None
+    laser: Laser | None
+    imu: Imu
+    odom: WheelOdometry
+    baro: Barometer
+    thermo: Thermometer | None
+    camera: Any  # RgbdCamera: mfmap.sim.camera loads only for a scenario with a camera
+
+
+@dataclass
+class _Kit:
+    """Message parts shared by every message of a kind: point fields, covariances."""
+
+    fields: list[Any]
+    vec3: Any
+    quat: Any
+    cov_imu: F64
+    cov_gyro: F64
+    cov_acc: F64
+    cov_pose: F64
+    cov_twist: F64
 
 
 def _write_log(
@@ -193,7 +237,44 @@ def _write_log(
     seed: int,
     progress: Progress,
 ) -> dict[str, int]:
+    sensors = _open_sensors(w, spec, building, traj, baro, start_ns, duration_s, seed)
     T = w.types
+    kit = _Kit(
+        fields=[T["sensor_msgs/msg/PointField"](name=n, offset=o, datatype=d, count=1) for n, o, d in POINT_FIELDS],
+        vec3=T["geometry_msgs/msg/Vector3"],
+        quat=T["geometry_msgs/msg/Quaternion"],
+        cov_imu=np.diag([1e-5, 1e-5, 1e-5]).reshape(-1),
+        cov_gyro=np.diag([9e-6] * 3).reshape(-1),
+        cov_acc=np.diag([9e-4] * 3).reshape(-1),
+        cov_pose=np.diag([0.01, 0.01, 1e6, 1e6, 1e6, 0.005]).reshape(-1),
+        cov_twist=np.diag([2.5e-5, 1e6, 1e6, 1e6, 1e6, 1e-5]).reshape(-1),
+    )
+    n_scans = duration_s * (spec.lidar.rate_hz if spec.lidar else spec.laser.rate_hz)  # type: ignore[union-attr]
+    with progress.stage("simulate", total=n_scans) as bar:
+        for sec in range(duration_s):
+            batch = _scan_messages(w, sensors, kit, sec, start_ns, bar)
+            kin = Kinematics.of(traj, sec * RATE_HZ, (sec + 1) * RATE_HZ)
+            batch += _motion_messages(w, sensors, kit, kin, sec, start_ns)
+            batch += _baro_messages(w, spec, sensors, sec, start_ns)
+            if sensors.camera is not None:
+                batch += _camera_messages(w, sensors.camera, sec, start_ns)
+            batch.sort(key=lambda m: (m[0], m[1]))
+            for stamp, _, topic, msg in batch:
+                w.write(topic, stamp, msg)
+    return dict(w.counts)
+
+
+def _open_sensors(
+    w: LogWriter,
+    spec: ScenarioSpec,
+    building: Building,
+    traj: Trajectory,
+    baro: Barometer,
+    start_ns: int,
+    duration_s: int,
+    seed: int,
+) -> _Sensors:
+    """The scenario's sensors, their topics, and /tf_static with their mounts."""
     scenes = Scenes(building, traj)
     lidar = Lidar(spec.lidar, scenes, seed) if spec.lidar else None
     laser = Laser(spec.laser, scenes, seed) if spec.laser else None
@@ -226,127 +307,134 @@ def _write_log(
             w.add_topic(topic, msgtype)
     w.add_topic(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", latched=True)
     w.write(TOPIC_TF_STATIC, start_ns, _tf_static(w, mounts, start_ns))
-
-    fields = [T["sensor_msgs/msg/PointField"](name=n, offset=o, datatype=d, count=1) for n, o, d in POINT_FIELDS]
-    vec3 = T["geometry_msgs/msg/Vector3"]
-    quat = T["geometry_msgs/msg/Quaternion"]
-    cov_imu = np.diag([1e-5, 1e-5, 1e-5]).reshape(-1)
-    cov_gyro = np.diag([9e-6] * 3).reshape(-1)
-    cov_acc = np.diag([9e-4] * 3).reshape(-1)
-    cov_pose = np.diag([0.01, 0.01, 1e6, 1e6, 1e6, 0.005]).reshape(-1)
-    cov_twist = np.diag([2.5e-5, 1e6, 1e6, 1e6, 1e6, 1e-5]).reshape(-1)
-    n_scans = duration_s * (spec.lidar.rate_hz if spec.lidar else spec.laser.rate_hz)  # type: ignore[union-attr]
-    with progress.stage("simulate", total=n_scans) as bar:
-        for sec in range(duration_s):
-            batch: list[tuple[int, int, str, Any]] = []  # (stamp, order, topic, msg)
-            if lidar:
-                rate = lidar.spec.rate_hz
-                for k in range(sec * rate, (sec + 1) * rate):
-                    stamp = _stamp(start_ns, k, rate)
-                    pts = lidar.scan(k / rate)
-                    s = lidar.spec
-                    msg = T["sensor_msgs/msg/PointCloud2"](
-                        header=w.header(stamp, LIDAR_MOUNT.frame, TOPIC_LIDAR),
-                        height=s.beams,
-                        width=s.columns,
-                        fields=fields,
-                        is_bigendian=False,
-                        point_step=pts.dtype.itemsize,
-                        row_step=pts.dtype.itemsize * s.columns,
-                        data=u8(pts),
-                        is_dense=False,
-                    )
-                    batch.append((stamp, 0, TOPIC_LIDAR, msg))
-                    bar.advance()
-            if laser:
-                s2 = laser.spec
-                rate = s2.rate_hz
-                for k in range(sec * rate, (sec + 1) * rate):
-                    stamp = _stamp(start_ns, k, rate)
-                    ranges, inten = laser.scan(k / rate)
-                    msg = T["sensor_msgs/msg/LaserScan"](
-                        header=w.header(stamp, LASER_MOUNT.frame, TOPIC_SCAN),
-                        angle_min=laser.angle_min,
-                        angle_max=laser.angle_min + laser.angle_inc * (s2.samples - 1),
-                        angle_increment=laser.angle_inc,
-                        time_increment=laser.time_inc_s,
-                        scan_time=1.0 / rate,
-                        range_min=s2.range_min_m,
-                        range_max=s2.range_max_m,
-                        ranges=ranges,
-                        intensities=inten,
-                    )
-                    batch.append((stamp, 0, TOPIC_SCAN, msg))
-                    bar.advance()
-            i0, i1 = sec * RATE_HZ, (sec + 1) * RATE_HZ
-            kin = Kinematics.of(traj, i0, i1)
-            q, gyro, acc = imu.samples(kin)
-            for j in range(i1 - i0):
-                stamp = _stamp(start_ns, i0 + j, IMU_RATE_HZ)
-                msg = T["sensor_msgs/msg/Imu"](
-                    header=w.header(stamp, IMU_MOUNT.frame, TOPIC_IMU),
-                    orientation=quat(x=q[j, 0], y=q[j, 1], z=q[j, 2], w=q[j, 3]),
-                    orientation_covariance=cov_imu,
-                    angular_velocity=vec3(x=gyro[j, 0], y=gyro[j, 1], z=gyro[j, 2]),
-                    angular_velocity_covariance=cov_gyro,
-                    linear_acceleration=vec3(x=acc[j, 0], y=acc[j, 1], z=acc[j, 2]),
-                    linear_acceleration_covariance=cov_acc,
-                )
-                batch.append((stamp, 1, TOPIC_IMU, msg))
-            step = RATE_HZ // ODOM_RATE_HZ
-            for k in range(sec * ODOM_RATE_HZ, (sec + 1) * ODOM_RATE_HZ):
-                x, y, yaw, v, wz = odom.step(kin, k * step)
-                stamp = _stamp(start_ns, k, ODOM_RATE_HZ)
-                pose = T["geometry_msgs/msg/Pose"](
-                    position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-                    orientation=quat(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
-                )
-                twist = T["geometry_msgs/msg/Twist"](linear=vec3(x=v, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=wz))
-                msg = T["nav_msgs/msg/Odometry"](
-                    header=w.header(stamp, ODOM_FRAME, TOPIC_ODOM),
-                    child_frame_id=BASE_FRAME,
-                    pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov_pose),
-                    twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=cov_twist),
-                )
-                batch.append((stamp, 2, TOPIC_ODOM, msg))
-            b_rate = spec.baro.rate_hz
-            b_step = RATE_HZ // b_rate
-            ks = np.arange(sec * b_rate, (sec + 1) * b_rate)
-            pressures = baro.samples(ks * b_step)
-            for kb, p in zip(ks, pressures, strict=True):
-                stamp = _stamp(start_ns, int(kb), b_rate)
-                msg = T["sensor_msgs/msg/FluidPressure"](
-                    header=w.header(stamp, BARO_MOUNT.frame, TOPIC_BARO),
-                    fluid_pressure=float(p),
-                    variance=spec.baro.noise_pa**2,
-                )
-                batch.append((stamp, 3, TOPIC_BARO, msg))
-            if thermo:
-                t_rate = thermo.rate_hz
-                for kt in range(sec * t_rate, (sec + 1) * t_rate):
-                    stamp = _stamp(start_ns, kt, t_rate)
-                    msg = T["sensor_msgs/msg/Temperature"](
-                        header=w.header(stamp, BARO_MOUNT.frame, TOPIC_BARO_TEMPERATURE),
-                        temperature=float(thermo.celsius[kt]),
-                        variance=thermo.noise_k**2,
-                    )
-                    batch.append((stamp, 4, TOPIC_BARO_TEMPERATURE, msg))
-            if camera is not None:
-                batch += _camera_messages(w, camera, sec, start_ns)
-            batch.sort(key=lambda m: (m[0], m[1]))
-            for stamp, _, topic, msg in batch:
-                w.write(topic, stamp, msg)
-    return dict(w.counts)
+    return _Sensors(lidar, laser, imu, odom, baro, thermo, camera)
 
 
-def _camera_messages(w: LogWriter, camera: Any, sec: int, start_ns: int) -> list[tuple[int, int, str, Any]]:
+def _scan_messages(w: LogWriter, sensors: _Sensors, kit: _Kit, sec: int, start_ns: int, bar: Any) -> Batch:
+    """One second of the 3D lidar's clouds and the 2D laser's scans."""
+    T = w.types
+    batch: Batch = []  # (stamp, order, topic, msg)
+    lidar, laser = sensors.lidar, sensors.laser
+    if lidar:
+        rate = lidar.spec.rate_hz
+        for k in range(sec * rate, (sec + 1) * rate):
+            stamp = _stamp(start_ns, k, rate)
+            pts = lidar.scan(k / rate)
+            s = lidar.spec
+            msg = T["sensor_msgs/msg/PointCloud2"](
+                header=w.header(stamp, LIDAR_MOUNT.frame, TOPIC_LIDAR),
+                height=s.beams,
+                width=s.columns,
+                fields=kit.fields,
+                is_bigendian=False,
+                point_step=pts.dtype.itemsize,
+                row_step=pts.dtype.itemsize * s.columns,
+                data=u8(pts),
+                is_dense=False,
+            )
+            batch.append((stamp, 0, TOPIC_LIDAR, msg))
+            bar.advance()
+    if laser:
+        s2 = laser.spec
+        rate = s2.rate_hz
+        for k in range(sec * rate, (sec + 1) * rate):
+            stamp = _stamp(start_ns, k, rate)
+            ranges, inten = laser.scan(k / rate)
+            msg = T["sensor_msgs/msg/LaserScan"](
+                header=w.header(stamp, LASER_MOUNT.frame, TOPIC_SCAN),
+                angle_min=laser.angle_min,
+                angle_max=laser.angle_min + laser.angle_inc * (s2.samples - 1),
+                angle_increment=laser.angle_inc,
+                time_increment=laser.time_inc_s,
+                scan_time=1.0 / rate,
+                range_min=s2.range_min_m,
+                range_max=s2.range_max_m,
+                ranges=ranges,
+                intensities=inten,
+            )
+            batch.append((stamp, 0, TOPIC_SCAN, msg))
+            bar.advance()
+    return batch
+
+
+def _motion_messages(
+    w: LogWriter, sensors: _Sensors, kit: _Kit, kin: Kinematics, sec: int, start_ns: int
+) -> Batch:
+    """One second of the IMU (200 Hz) and the wheel odometry (50 Hz)."""
+    T = w.types
+    vec3, quat = kit.vec3, kit.quat
+    batch: Batch = []
+    i0, i1 = sec * RATE_HZ, (sec + 1) * RATE_HZ
+    q, gyro, acc = sensors.imu.samples(kin)
+    for j in range(i1 - i0):
+        stamp = _stamp(start_ns, i0 + j, IMU_RATE_HZ)
+        msg = T["sensor_msgs/msg/Imu"](
+            header=w.header(stamp, IMU_MOUNT.frame, TOPIC_IMU),
+            orientation=quat(x=q[j, 0], y=q[j, 1], z=q[j, 2], w=q[j, 3]),
+            orientation_covariance=kit.cov_imu,
+            angular_velocity=vec3(x=gyro[j, 0], y=gyro[j, 1], z=gyro[j, 2]),
+            angular_velocity_covariance=kit.cov_gyro,
+            linear_acceleration=vec3(x=acc[j, 0], y=acc[j, 1], z=acc[j, 2]),
+            linear_acceleration_covariance=kit.cov_acc,
+        )
+        batch.append((stamp, 1, TOPIC_IMU, msg))
+    step = RATE_HZ // ODOM_RATE_HZ
+    for k in range(sec * ODOM_RATE_HZ, (sec + 1) * ODOM_RATE_HZ):
+        x, y, yaw, v, wz = sensors.odom.step(kin, k * step)
+        stamp = _stamp(start_ns, k, ODOM_RATE_HZ)
+        pose = T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=quat(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+        )
+        twist = T["geometry_msgs/msg/Twist"](linear=vec3(x=v, y=0.0, z=0.0), angular=vec3(x=0.0, y=0.0, z=wz))
+        msg = T["nav_msgs/msg/Odometry"](
+            header=w.header(stamp, ODOM_FRAME, TOPIC_ODOM),
+            child_frame_id=BASE_FRAME,
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=kit.cov_pose),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=kit.cov_twist),
+        )
+        batch.append((stamp, 2, TOPIC_ODOM, msg))
+    return batch
+
+
+def _baro_messages(w: LogWriter, spec: ScenarioSpec, sensors: _Sensors, sec: int, start_ns: int) -> Batch:
+    """One second of the barometer's pressure and, when it has one, its temperature."""
+    T = w.types
+    batch: Batch = []
+    baro, thermo = sensors.baro, sensors.thermo
+    b_rate = spec.baro.rate_hz
+    b_step = RATE_HZ // b_rate
+    ks = np.arange(sec * b_rate, (sec + 1) * b_rate)
+    pressures = baro.samples(ks * b_step)
+    for kb, p in zip(ks, pressures, strict=True):
+        stamp = _stamp(start_ns, int(kb), b_rate)
+        msg = T["sensor_msgs/msg/FluidPressure"](
+            header=w.header(stamp, BARO_MOUNT.frame, TOPIC_BARO),
+            fluid_pressure=float(p),
+            variance=spec.baro.noise_pa**2,
+        )
+        batch.append((stamp, 3, TOPIC_BARO, msg))
+    if thermo:
+        t_rate = thermo.rate_hz
+        for kt in range(sec * t_rate, (sec + 1) * t_rate):
+            stamp = _stamp(start_ns, kt, t_rate)
+            msg = T["sensor_msgs/msg/Temperature"](
+                header=w.header(stamp, BARO_MOUNT.frame, TOPIC_BARO_TEMPERATURE),
+                temperature=float(thermo.celsius[kt]),
+                variance=thermo.noise_k**2,
+            )
+            batch.append((stamp, 4, TOPIC_BARO_TEMPERATURE, msg))
+    return batch
+
+
+def _camera_messages(w: LogWriter, camera: Any, sec: int, start_ns: int) -> Batch:
     """One second of the RGB-D camera: depth (16UC1 mm), jpeg colour and their CameraInfo."""
     import cv2
 
     T = w.types
     s = camera.spec
     frame = camera.mount.frame
-    out: list[tuple[int, int, str, Any]] = []
+    out: Batch = []
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     k = np.array(s.k, dtype=np.float64)
     p = np.array([k[0], 0, k[2], 0, 0, k[4], k[5], 0, 0, 0, 1, 0], dtype=np.float64)

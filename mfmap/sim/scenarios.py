@@ -5,12 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from mfmap.sim.building import Building, BuildingSpec, corridor_block, office_block
+from mfmap.sim.building import Building
 from mfmap.sim.camera import RgbdSpec
 from mfmap.sim.layout import FamilySpec, generate_building
+from mfmap.sim.route import RouteBuilder
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
 from mfmap.sim.sessions import Session, session_scenarios
-from mfmap.sim.trajectory import RouteBuilder
+from mfmap.sim.spec import BuildingSpec, corridor_block, office_block
 from mfmap.sim.world import WorldSpec
 
 # Checkpoints of the LeGO-LOAM elevator paper's manual-driving experiment (Table I), world frame.

@@ -13,12 +13,12 @@ import numpy as np
 import numpy.typing as npt
 
 from mfmap.sim.atmosphere import CALM_AIR
-from mfmap.sim.building import Building, Kind, cast_rays, kinds_of
+from mfmap.sim.boxes import Kind, cast_rays, kinds_of
+from mfmap.sim.building import Building
 from mfmap.sim.trajectory import DT_S, RATE_HZ, FArr, Trajectory, rotation_matrices
 from mfmap.sim.world import World
+from mfmap.types import F32, F64
 
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
 GRAVITY = 9.81
 
 

@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mfmap.atomic import write_bytes_atomic
+from mfmap.sim.route import RouteBuilder
 from mfmap.sim.sensors import LidarSpec
-from mfmap.sim.trajectory import RouteBuilder
 from mfmap.sim.world import WorldSpec
 
 if TYPE_CHECKING:
@@ -89,7 +89,7 @@ class Session:
         return path
 
 
-# ----- routes in the office block (see mfmap.sim.building's plan) ------------------------------
+# ----- routes in the office block (see mfmap.sim.spec's plan) ------------------------------
 
 P1, P2, P3, P4 = (0.0, 0.0), (6.0, -2.0), (6.0, -12.0), (0.7, -12.0)
 W_NORTH, W_SOUTH = (-2.75, -1.0), (-2.75, -12.0)

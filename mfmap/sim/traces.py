@@ -13,15 +13,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import numpy.typing as npt
 
 from mfmap.sim.atmosphere import CALM_AIR
-from mfmap.types import OdomSeries, PressureSeries
+from mfmap.types import F64, I32, OdomSeries, PressureSeries
 
 if TYPE_CHECKING:
     from mfmap.sim.world import WorldSpec
 
-F64 = npt.NDArray[np.float64]
 
 ELEVATOR_SPEED_M_S = 1.0
 ELEVATOR_ACCEL_M_S2 = 0.5
@@ -52,7 +50,7 @@ class SyntheticTrace:
     pressure: PressureSeries
     times_s: F64  # seconds since the start
     height_m: F64  # true height above the start floor
-    level_of_sample: npt.NDArray[np.int32]  # index into `elevations`, -1 while moving
+    level_of_sample: I32  # index into `elevations`, -1 while moving
     elevations: list[float]
     transitions: list[TruthTransition] = field(default_factory=list)
 
@@ -104,45 +102,10 @@ def synthetic_trace(
     placed on stays, at least 2 s away from motion, because that is where they are physical.
     """
     rng = np.random.default_rng(seed)
-    total_s = 0.0
-    spans: list[tuple[Leg, float, float]] = []
-    for leg in legs:
-        if leg.kind == "stay":
-            dur = leg.duration_s
-        elif leg.kind == "elevator":
-            dur = elevator_duration_s(leg.height_change_m)
-        else:
-            dur = abs(leg.height_change_m) / leg.speed_m_s
-        spans.append((leg, total_s, total_s + dur))
-        total_s += dur
+    spans, total_s = _leg_spans(legs)
     n = int(np.floor(total_s * rate_hz)) + 1
     t_s = np.arange(n, dtype=np.float64) / rate_hz
-    height = np.zeros(n)
-    level = np.full(n, -1, dtype=np.int32)
-    elevations = [0.0]
-    cur_h = 0.0
-    cur_level = 0
-    truth: list[TruthTransition] = []
-    for leg, t0, t1 in spans:
-        inside = (t_s >= t0) & (t_s < t1) if t1 < total_s else (t_s >= t0)
-        if leg.kind == "stay":
-            height[inside] = cur_h
-            level[inside] = cur_level
-            continue
-        rel = t_s[inside] - t0
-        if leg.kind == "elevator":
-            height[inside] = cur_h + _elevator_profile(rel, leg.height_change_m)
-        else:
-            height[inside] = cur_h + np.sign(leg.height_change_m) * leg.speed_m_s * rel
-        new_h = cur_h + leg.height_change_m
-        match = [i for i, e in enumerate(elevations) if abs(e - new_h) < 0.05]
-        if match:
-            new_level = match[0]
-        else:
-            elevations.append(new_h)
-            new_level = len(elevations) - 1
-        truth.append(TruthTransition(leg.kind, t0, t1, cur_level, new_level, leg.height_change_m))
-        cur_h, cur_level = new_h, new_level
+    height, level, elevations, truth = _walk(spans, t_s, total_s)
 
     pressure = CALM_AIR.pressure_pa(height, start_pressure_pa)
     pressure = pressure + drift_pa_per_h * t_s / 3600.0
@@ -171,6 +134,57 @@ def synthetic_trace(
         elevations=elevations,
         transitions=truth,
     )
+
+
+def _leg_spans(legs: list[Leg]) -> tuple[list[tuple[Leg, float, float]], float]:
+    """Each leg with its start and end time, and the walk's duration."""
+    total_s = 0.0
+    spans: list[tuple[Leg, float, float]] = []
+    for leg in legs:
+        if leg.kind == "stay":
+            dur = leg.duration_s
+        elif leg.kind == "elevator":
+            dur = elevator_duration_s(leg.height_change_m)
+        else:
+            dur = abs(leg.height_change_m) / leg.speed_m_s
+        spans.append((leg, total_s, total_s + dur))
+        total_s += dur
+    return spans, total_s
+
+
+def _walk(
+    spans: list[tuple[Leg, float, float]], t_s: F64, total_s: float
+) -> tuple[F64, I32, list[float], list[TruthTransition]]:
+    """Height and level (-1 while moving) at each sample time, the levels' elevations in order
+    of first visit, and the true transitions."""
+    n = t_s.shape[0]
+    height = np.zeros(n)
+    level = np.full(n, -1, dtype=np.int32)
+    elevations = [0.0]
+    cur_h = 0.0
+    cur_level = 0
+    truth: list[TruthTransition] = []
+    for leg, t0, t1 in spans:
+        inside = (t_s >= t0) & (t_s < t1) if t1 < total_s else (t_s >= t0)
+        if leg.kind == "stay":
+            height[inside] = cur_h
+            level[inside] = cur_level
+            continue
+        rel = t_s[inside] - t0
+        if leg.kind == "elevator":
+            height[inside] = cur_h + _elevator_profile(rel, leg.height_change_m)
+        else:
+            height[inside] = cur_h + np.sign(leg.height_change_m) * leg.speed_m_s * rel
+        new_h = cur_h + leg.height_change_m
+        match = [i for i, e in enumerate(elevations) if abs(e - new_h) < 0.05]
+        if match:
+            new_level = match[0]
+        else:
+            elevations.append(new_h)
+            new_level = len(elevations) - 1
+        truth.append(TruthTransition(leg.kind, t0, t1, cur_level, new_level, leg.height_change_m))
+        cur_h, cur_level = new_h, new_level
+    return height, level, elevations, truth
 
 
 def building_walk(floor_height_m: float = 4.0, kind: str = "elevator", stay_s: float = 40.0) -> list[Leg]:

@@ -38,12 +38,12 @@ from mfmap.sim.atmosphere import (
     normal_gravity_m_s2,
     virtual_temperature_k,
 )
+from mfmap.types import F64
 
 if TYPE_CHECKING:
     from mfmap.sim.building import Building
     from mfmap.sim.trajectory import Trajectory
 
-F64 = npt.NDArray[np.float64]
 Range = tuple[float, float]
 
 # The stack effect's pressure on a floor is taken at this height above its slab (a person's

@@ -26,12 +26,12 @@ SIDE_NORMAL = {"right": (1.0, 0.0), "left": (-1.0, 0.0), "front": (0.0, 1.0), "b
 def _truth(sim: Path) -> dict[str, Any]:
     """The simulated elevator: its centre from gt_floors.json, its cabin's outer size and door
     direction from the simulator's building (the ground-truth files do not carry them)."""
-    from mfmap.sim import building
+    from mfmap.sim import spec
 
     gt = json.loads((sim / "gt_floors.json").read_text())
     elevator = next(c for c in gt["connectors"] if c["kind"] == "elevator")
     return {"gt": gt, "centre": (elevator["x"], elevator["y"]), "floors": elevator["floors"],
-            "size": 2 * building.CABIN_HALF, "door_normal": (0.0, -1.0)}  # "The door faces -y"
+            "size": 2 * spec.CABIN_HALF, "door_normal": (0.0, -1.0)}  # "The door faces -y"
 
 
 @pytest.fixture(scope="module", params=SCENARIOS)

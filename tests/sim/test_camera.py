@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mfmap.sim.building import Box, Kind, cast_rays
+from mfmap.sim.boxes import Box, Kind, cast_rays
 from mfmap.sim.camera import CAMERA_MOUNT, RgbdCamera, RgbdSpec, box_colours, surface_colour
 from mfmap.sim.run import build_trajectory
 from mfmap.sim.scenarios import SCENARIOS, building_for

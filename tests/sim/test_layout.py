@@ -9,10 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from mfmap.sim.building import Building, BuildingSpec, Corridor
+from mfmap.sim.building import Building
 from mfmap.sim.layout import FamilySpec, generate_building, plan_path
 from mfmap.sim.run import build_trajectory
 from mfmap.sim.scenarios import SCENARIOS, building_for
+from mfmap.sim.spec import BuildingSpec, Corridor
 from mfmap.sim.trajectory import DT_S
 
 

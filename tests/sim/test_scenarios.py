@@ -13,9 +13,10 @@ import pytest
 
 from mfmap.errors import MfmapError
 from mfmap.sim import SCENARIOS, simulate
-from mfmap.sim.building import Building, office_block
+from mfmap.sim.building import Building
 from mfmap.sim.run import build_trajectory
 from mfmap.sim.scenarios import building_for
+from mfmap.sim.spec import office_block
 from mfmap.sim.trajectory import DT_S
 
 

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from mfmap.sim.atmosphere import CALM_AIR, KELVIN
-from mfmap.sim.building import Building, office_block
+from mfmap.sim.building import Building
 from mfmap.sim.run import build_trajectory, make_barometer
 from mfmap.sim.scenarios import SCENARIOS, building_for
 from mfmap.sim.sensors import Barometer
+from mfmap.sim.spec import office_block
 from mfmap.sim.trajectory import DT_S, Trajectory
 from mfmap.sim.world import TemperatureSpec, World, WorldSpec
 
