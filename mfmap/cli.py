@@ -284,7 +284,7 @@ def build(
     cfg = _load(config, topic, assume_identity)
     limit_threads(threads)
     from mfmap.pipeline import build as run_build
-    from mfmap.pipeline import render_summary
+    from mfmap.report import render_summary
 
     result = run_build(log, out, cfg, force=force, progress=RichProgress(),
                        inputs=[config] if config is not None else [])

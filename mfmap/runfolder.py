@@ -15,11 +15,12 @@ import os
 import shutil
 import socket
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
-from mfmap.atomic import disk_error
+from mfmap.atomic import disk_error, is_disk_error
 from mfmap.errors import OutputError
 
 MARKER = ".mfmap-build"
@@ -278,9 +279,40 @@ class RunFolder:
     def discard(self) -> None:
         shutil.rmtree(self.partial, ignore_errors=True)
 
-    def commit(self) -> None:
-        """Rename the finished partial folder into place, replacing an old OUT only now."""
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Path]:
+        """The block that writes the partial folder: on any error the folder is removed, and an
+        error about a file in it names the output folder the user knows."""
+        partial = self.partial
+        try:
+            yield partial
+        except OSError as err:
+            self.discard()
+            if is_disk_error(err):
+                raise disk_error(err, self.out) from err
+            raise
+        except OutputError as err:
+            self.discard()
+            if err.path is not None and partial in err.path.parents:
+                # The partial folder is gone: the user knows the output folder by its own name.
+                name = err.path.relative_to(partial)
+                raise OutputError(f"{err.message} (writing {name}; nothing was left behind)",
+                                  self.out) from err
+            raise
+        except BaseException:
+            self.discard()
+            raise
+
+    def commit(self, report: Mapping[str, Any] | None = None) -> list[str]:
+        """Write `report` as report.json, the folder's last file, then rename the finished
+        partial folder into place, replacing an old OUT only now. Returns the files written
+        (paths relative to the folder, sorted)."""
         out, partial = self.out, self.partial
+        if report is not None:
+            from mfmap.export.files import write_json
+
+            write_json(partial / "report.json", report)
+        files = sorted(str(p.relative_to(partial)) for p in partial.rglob("*") if p.is_file())
         old: Path | None = None
         try:
             if out.exists():
@@ -300,6 +332,17 @@ class RunFolder:
             raise disk_error(err, out) from err
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+        return files
 
 
-__all__ = ["MARKER", "RunFolder", "check_output", "clean_stale", "is_build_folder"]
+def log_folders(log: Path) -> list[Path]:
+    """The folders that are part of the log: a bag folder or a folder of .mcap files (also when
+    the log is named by its metadata.yaml or one of its .db3 files)."""
+    if log.is_dir():
+        return [log]
+    if log.suffix == ".db3" or log.name == "metadata.yaml":
+        return [log.parent]
+    return []
+
+
+__all__ = ["MARKER", "RunFolder", "check_output", "clean_stale", "is_build_folder", "log_folders"]

@@ -8,7 +8,7 @@ memory small, poses float64.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import Enum, StrEnum
 
 import numpy as np
 import numpy.typing as npt
@@ -222,6 +222,14 @@ class Keyframe:
     rmse_m: float
 
 
+class EdgeKind(StrEnum):
+    """What measured a pose edge. A StrEnum, not (str, Enum): the kind is a key of the graph's
+    factor statistics, and str() and f-strings (report.html, the terminal) must give the value."""
+
+    ODOMETRY = "odometry"
+    LOOP = "loop"
+
+
 @dataclass(frozen=True)
 class PoseEdge:
     """A relative-pose measurement between keyframes: T_i^-1 * T_j = measured."""
@@ -230,7 +238,7 @@ class PoseEdge:
     j: int
     measured: F64  # (4, 4)
     information: F64  # (6, 6), gtsam order (rx, ry, rz, tx, ty, tz)
-    kind: str  # "odometry" | "loop"
+    kind: EdgeKind
     fitness: float = 1.0
 
 

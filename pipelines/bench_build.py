@@ -78,9 +78,11 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
     from mfmap import pipeline
     from mfmap.config import MfmapConfig, dump_config
     from mfmap.export.config import CloudSource
+    from mfmap.export.files import write_json
     from mfmap.export.write import write_outputs
     from mfmap.ingest import open_log
     from mfmap.mapping import map_floors
+    from mfmap.report import BuildReport, ReportSummary
 
     cfg = MfmapConfig()
     warnings: list[str] = []
@@ -102,9 +104,11 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
                                                    pipeline.NullProgress())
             out = work / f"ablation-{sim.name}-{name.replace(' ', '-')}"
             shutil.rmtree(out, ignore_errors=True)
-            report = {"summary": {}, "graph": graph.to_json(), "timings_s": {}, "warnings": graph.warnings}
+            report = BuildReport(str(sim / "log.mcap"), {}, ReportSummary(len(seg.floors), len(seg.transitions), 0.0,
+                                 len(mapping.keyframes)), {}, {}, {}, graph.to_json(), list(graph.warnings))
             write_outputs(out, seg, mapping, graph, trajectory, maps, report, dump_config(variant),
                           title=name, html=False)
+            write_json(out / "report.json", report.to_json())  # the eval needs a finished build
             rows.append((name, evaluate(out, sim)))
     return rows
 

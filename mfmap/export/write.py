@@ -24,6 +24,7 @@ from mfmap.export.report import html_report, pressure_plot_png, side_view_png, s
 from mfmap.export.rmf import building_yaml
 from mfmap.export.viewer import view_data, view_html
 from mfmap.graph.optimize import GraphResult
+from mfmap.report import BuildReport
 from mfmap.types import F64, FloorSegmentation, MappingResult
 
 logger = logging.getLogger(__name__)
@@ -38,7 +39,6 @@ class Trajectory:
 
 @dataclass
 class ExportSummary:
-    files: list[str] = field(default_factory=list)
     points_per_floor: dict[int, int] = field(default_factory=dict)
     grid_cells: dict[int, dict[str, int]] = field(default_factory=dict)
     trajectory_poses: int = 0
@@ -164,7 +164,7 @@ def write_outputs(
     graph: GraphResult,
     trajectory: Trajectory,
     maps: MapAccumulator,
-    report: dict[str, Any],
+    report: BuildReport,
     config_yaml: str,
     title: str,
     html: bool = True,
@@ -173,7 +173,8 @@ def write_outputs(
     cabins: Sequence[Cabin] = (),
 ) -> ExportSummary:
     """Write map.ply, trajectory.tum, floors.json, floors/<id>/..., map.mcap, building.yaml,
-    floors/index.yaml, report.json/html, config.yaml.
+    floors/index.yaml, report.html, config.yaml; `report` gains the exports' warnings and
+    figures (report.json is the run folder's last file, see `RunFolder.commit`).
 
     With `pool`, report.html's side view is drawn by a worker while the files are written;
     `pressure_png` is the pressure figure, already submitted to one.
@@ -191,13 +192,50 @@ def write_outputs(
 
     clouds = {floor_id: maps.cloud(floor_id) for floor_id in maps.floor_ids()}
     colours = {floor_id: maps.colours(floor_id) for floor_id in maps.floor_ids()}
-    coloured = any(c is not None for c in colours.values())
     xyz = np.concatenate(list(clouds.values())) if clouds else np.zeros((0, 3), np.float32)
     floor = (np.concatenate([np.full(c.shape[0], f, dtype=np.int32) for f, c in clouds.items()])
              if clouds else np.zeros(0, np.int32))
     side_view: Future[bytes] | None = None
     if html and pool is not None:
         side_view = pool.submit(side_view_png, *side_view_sample(xyz, floor))
+    grids, grid_pngs = _write_floors(folder, maps, clouds, colours, trajectory, summary)
+    write_ply(folder / "map.ply", xyz, floor, _map_colours(clouds, colours))
+    elevation = {f["id"]: float(f["elevation_m"]) for f in floors_doc["floors"]}
+    export_warnings = write_building(folder, title, floors_doc, clouds, grids, elevation, cabins,
+                                     trajectory)
+
+    summary.warnings = [f"export: {w}" for w in export_warnings]
+    _add_exports(report, summary, cabins)
+    if html:
+        pressure = pressure_png.result() if pressure_png is not None else _pressure_figure(seg)
+        side = side_view.result() if side_view is not None else side_view_png(*side_view_sample(xyz, floor))
+        view = view_html(view_data(clouds, elevation, trajectory.poses[:, :3, 3] if len(trajectory.poses)
+                                   else np.zeros((0, 3)), floors_doc, cabins))
+        page = html_report(title, report.to_json(), floors_doc, pressure, grid_pngs, side, view)
+        write_text(folder / "report.html", page)
+    write_text(folder / "config.yaml", config_yaml)
+    return summary
+
+
+def _add_exports(report: BuildReport, summary: ExportSummary, cabins: Sequence[Cabin]) -> None:
+    """The exports' warnings and figures into the report."""
+    report.warnings = [*report.warnings, *summary.warnings]
+    report.exports = {
+        "points_per_floor": {str(k): v for k, v in summary.points_per_floor.items()},
+        "grids": {str(k): v for k, v in summary.grid_cells.items()},
+        "trajectory_poses": summary.trajectory_poses,
+        "cabins": [cabin_json(c) for c in cabins],
+    }
+
+
+def _pressure_figure(seg: FloorSegmentation) -> bytes | None:
+    return pressure_plot_png(seg) if len(seg.stamp_ns) > 1 else None
+
+
+def _write_floors(folder: Path, maps: MapAccumulator, clouds: dict[int, np.ndarray],
+                  colours: dict[int, np.ndarray | None], trajectory: Trajectory,
+                  summary: ExportSummary) -> tuple[dict[int, OccupancyGrid], dict[int, bytes]]:
+    """floors/<id>/cloud.ply and the grid files; the grids and their PNGs (for report.html)."""
     grid_pngs: dict[int, bytes] = {}
     grids: dict[int, OccupancyGrid] = {}
     for floor_id, cloud in clouds.items():
@@ -219,37 +257,13 @@ def write_outputs(
             "occupied": int(grid.occupied.sum()),
             "free": int(grid.free.sum()),
         }
-    rgb = None
-    if coloured:
-        grey = np.full((0, 3), 128, np.uint8)
-        rgb = np.concatenate([c if c is not None else np.full((clouds[f].shape[0], 3), 128, np.uint8)
-                              for f, c in colours.items()] or [grey])
-    write_ply(folder / "map.ply", xyz, floor, rgb)
-    elevation = {f["id"]: float(f["elevation_m"]) for f in floors_doc["floors"]}
-    export_warnings = write_building(folder, title, floors_doc, clouds, grids, elevation, cabins,
-                                     trajectory)
+    return grids, grid_pngs
 
-    report = dict(report)
-    summary.warnings = [f"export: {w}" for w in export_warnings]
-    report["warnings"] = [*report.get("warnings", []), *summary.warnings]
-    report["exports"] = {
-        "points_per_floor": {str(k): v for k, v in summary.points_per_floor.items()},
-        "grids": {str(k): v for k, v in summary.grid_cells.items()},
-        "trajectory_poses": summary.trajectory_poses,
-        "cabins": [cabin_json(c) for c in cabins],
-    }
-    write_json(folder / "report.json", report)
-    if html:
-        pressure: bytes | None = None
-        if pressure_png is not None:
-            pressure = pressure_png.result()
-        elif len(seg.stamp_ns) > 1:
-            pressure = pressure_plot_png(seg)
-        side = side_view.result() if side_view is not None else side_view_png(*side_view_sample(xyz, floor))
-        view = view_html(view_data(clouds, elevation, trajectory.poses[:, :3, 3] if len(trajectory.poses)
-                                   else np.zeros((0, 3)), floors_doc, cabins))
-        page = html_report(title, report, floors_doc, pressure, grid_pngs, side, view)
-        write_text(folder / "report.html", page)
-    write_text(folder / "config.yaml", config_yaml)
-    summary.files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
-    return summary
+
+def _map_colours(clouds: dict[int, np.ndarray], colours: dict[int, np.ndarray | None]) -> np.ndarray | None:
+    """map.ply's colours: the floors' own, grey for a floor without; None when no floor has any."""
+    if not any(c is not None for c in colours.values()):
+        return None
+    grey = np.full((0, 3), 128, np.uint8)
+    return np.concatenate([c if c is not None else np.full((clouds[f].shape[0], 3), 128, np.uint8)
+                           for f, c in colours.items()] or [grey])

@@ -57,8 +57,8 @@ def localize(
     from mfmap.ingest import open_log
     from mfmap.localize.mapfolder import load_map
     from mfmap.localize.output import write_outputs
-    from mfmap.pipeline import _log_folders
     from mfmap.runfolder import RunFolder, check_output, input_size
+    from mfmap.runfolder import log_folders as _log_folders
 
     started = time.perf_counter()
     cpu0 = time.process_time()

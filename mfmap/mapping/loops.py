@@ -24,7 +24,7 @@ from mfmap.mapping.registration import (
     to_o3d,
 )
 from mfmap.mapping.scan2d import Map2D, grid_downsample_2d, icp_2d
-from mfmap.types import F32, F64, Keyframe, PoseEdge
+from mfmap.types import F32, F64, EdgeKind, Keyframe, PoseEdge
 
 RINGS = 20
 SECTORS = 60
@@ -311,4 +311,4 @@ class LoopCloser:
         sig_r = np.radians(self.cfg.loop_sigma_deg) * grow
         sig_t = self.cfg.loop_sigma_m * grow
         info = np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
-        return PoseEdge(i, j, result.transform, info, "loop", result.fitness)
+        return PoseEdge(i, j, result.transform, info, EdgeKind.LOOP, result.fitness)

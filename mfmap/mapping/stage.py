@@ -49,6 +49,7 @@ from mfmap.types import (
     F64,
     I64,
     Cloud,
+    EdgeKind,
     Extrinsics,
     FloorSegmentation,
     ImuSeries,
@@ -578,7 +579,7 @@ class _Mapper:
             if previous.visit != kf.visit:  # across a stair walk
                 information[5, 5] = min(information[5, 5], self.cfg.stairs_sigma_z_m**-2)
                 measured = self._walk_heading(previous, kf, measured)
-            self.edges.append(PoseEdge(previous.id, kf.id, measured, information, "odometry",
+            self.edges.append(PoseEdge(previous.id, kf.id, measured, information, EdgeKind.ODOMETRY,
                                        fitness))
             if previous.visit == kf.visit and not self._on_stairs(previous.stamp_ns, kf.stamp_ns):
                 wheels = self.motion.wheels(previous.stamp_ns, kf.stamp_ns)

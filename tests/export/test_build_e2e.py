@@ -21,6 +21,7 @@ from mfmap.eval.grids import GRID_KEYS, load_grid, score_build
 from mfmap.export.config import CloudSource
 from mfmap.export.files import read_ply
 from mfmap.export.grid import GridBuilder
+from mfmap.report import BuildReport, ReportSummary, render_summary
 from tests.logcopy import copy_log
 
 EXPECTED = [
@@ -64,7 +65,7 @@ def _render(result: pipeline.BuildResult) -> str:
     from rich.console import Console
 
     buf = io.StringIO()
-    Console(file=buf, width=200).print(pipeline.render_summary(result))
+    Console(file=buf, width=200).print(render_summary(result))
     return buf.getvalue()
 
 
@@ -242,7 +243,7 @@ def test_interrupted_build_leaves_nothing_complete(tiny: Path, tmp_path: Path, m
 
     def write_then_interrupt(folder: Path, *args: Any, **kwargs: Any) -> Any:
         real(folder, *args, **kwargs)
-        assert (folder / "report.json").exists()  # everything was written ... then Ctrl-C
+        assert (folder / "config.yaml").exists()  # every export was written ... then Ctrl-C
         raise KeyboardInterrupt
 
     cfg = MfmapConfig()
@@ -293,10 +294,16 @@ def test_report_figures_drawn_by_workers_are_the_same(
     cfg = MfmapConfig()
     with open_log(tiny / "log.mcap", cfg.ingest) as src:
         trajectory, maps = pipeline.accumulate(src, seg, mapping, graph, extrinsics, cfg, NullProgress())
-    args = (seg, mapping, graph, trajectory, maps, {"log": "tiny"}, "config", "tiny")
-    write_outputs(tmp_path / "here", *args)
+
+    def report() -> BuildReport:
+        summary = ReportSummary(len(seg.floors), len(seg.transitions), 0.0, len(mapping.keyframes))
+        return BuildReport("tiny", {}, summary, {}, {}, {}, graph.to_json())
+
+    args = (seg, mapping, graph, trajectory, maps)
+    write_outputs(tmp_path / "here", *args, report(), "config", "tiny")
     with worker_pool(2) as pool:
-        write_outputs(tmp_path / "pool", *args, pool=pool, pressure_png=pool.submit(pressure_plot_png, seg))
+        write_outputs(tmp_path / "pool", *args, report(), "config", "tiny", pool=pool,
+                      pressure_png=pool.submit(pressure_plot_png, seg))
     here = (tmp_path / "here" / "report.html").read_text()
     assert here.count("data:image/png;base64,") == 4
     assert (tmp_path / "pool" / "report.html").read_text() == here

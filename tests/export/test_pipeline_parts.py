@@ -7,22 +7,17 @@ import warnings
 
 import numpy as np
 
+from mfmap.export.scans import _deskew, _floor_groups
 from mfmap.export.write import Trajectory
-from mfmap.pipeline import (
-    _Cabin,
-    _deskew,
-    _drop_cabin,
-    _floor_groups,
-    _in_cabin,
-    gravity_at_keyframes,
-    single_floor,
-)
+from mfmap.graph.gravity import gravity_at_keyframes
+from mfmap.mapping.cabin import CabinBox, drop_cabins, in_cabin
+from mfmap.pipeline import single_floor
 from mfmap.types import Extrinsics, ImuSeries, Keyframe, OdomSeries
 from tests.graph.synthetic import pose_xyyaw
 
 
 def test_cabin_filter_drops_the_cabin_and_what_is_seen_through_it() -> None:
-    cabin = _Cabin(0, 10, pose_xyyaw(10.0, 0.0, 0.0, 0.0), (1.0, 1.0))
+    cabin = CabinBox(0, 10, pose_xyyaw(10.0, 0.0, 0.0, 0.0), (1.0, 1.0))
     robot = pose_xyyaw(0.0, 0.0, 0.0, 0.0)
     points = np.array(
         [
@@ -33,15 +28,15 @@ def test_cabin_filter_drops_the_cabin_and_what_is_seen_through_it() -> None:
             [-4.0, 0.0, 1.0],  # behind the robot: kept
         ]
     )
-    kept = _drop_cabin(points, robot, 5, [cabin])
+    kept = drop_cabins(points, robot, 5, [cabin])
     assert kept.tolist() == points[[2, 3, 4]].tolist()
     # The same in a turned robot frame: the filter works in the scan's base frame.
     turned = pose_xyyaw(0.0, 0.0, 0.0, 0.7)
     base = (points - turned[:3, 3]) @ turned[:3, :3]
-    assert _drop_cabin(base, turned, 5, [cabin]).shape[0] == 3
-    assert _in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 5, [cabin])
-    assert not _in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 50, [cabin])  # outside the window
-    assert not _in_cabin(pose_xyyaw(12.0, 0.0, 0.0, 0.0), 5, [cabin])
+    assert drop_cabins(base, turned, 5, [cabin]).shape[0] == 3
+    assert in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 5, [cabin])
+    assert not in_cabin(pose_xyyaw(10.2, 0.3, 0.0, 1.0), 50, [cabin])  # outside the window
+    assert not in_cabin(pose_xyyaw(12.0, 0.0, 0.0, 0.0), 5, [cabin])
 
 
 def test_gravity_at_keyframes_in_the_base_frame() -> None:

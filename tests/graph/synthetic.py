@@ -17,6 +17,7 @@ import numpy as np
 
 from mfmap.types import (
     F64,
+    EdgeKind,
     Floor,
     FloorSegmentation,
     ImuSeries,
@@ -194,7 +195,7 @@ def make_building(
             else:
                 true_rel = np.linalg.inv(gt[kid - 1]) @ pose_gt
                 measured = true_rel @ _perturb(rng, odom_sigma_m, odom_sigma_rad, yaw_bias_rad)
-                edges.append(PoseEdge(kid - 1, kid, measured, info, "odometry"))
+                edges.append(PoseEdge(kid - 1, kid, measured, info, EdgeKind.ODOMETRY))
                 init = keyframes[-1].pose @ measured
             stamp_ns = START_NS + int(t_s * 1e9)
             cloud = keyframe_cloud(pose_gt, walls, rng, wall_height_m)
@@ -233,7 +234,7 @@ def make_building(
                 continue
             if np.linalg.norm(gt[a.id][:2, 3] - gt[b.id][:2, 3]) < 0.6:
                 rel = np.linalg.inv(gt[a.id]) @ gt[b.id] @ _perturb(rng, 0.005, 0.001, 0.0)
-                edges.append(PoseEdge(a.id, b.id, rel, loop_info, "loop"))
+                edges.append(PoseEdge(a.id, b.id, rel, loop_info, EdgeKind.LOOP))
                 break
     # Barometer at 10 Hz.
     prof_t = np.array([p[0] for p in profile])
