@@ -8,7 +8,7 @@ memory small, poses float64.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import Enum
 
 import numpy as np
 import numpy.typing as npt
@@ -222,12 +222,19 @@ class Keyframe:
     rmse_m: float
 
 
-class EdgeKind(StrEnum):
-    """What measured a pose edge. A StrEnum, not (str, Enum): the kind is a key of the graph's
-    factor statistics, and str() and f-strings (report.html, the terminal) must give the value."""
+class EdgeKind(str, Enum):
+    """What measured a pose edge. The kind is a key of the graph's factor statistics, and str()
+    and f-strings (report.html, the terminal) must give the value, as Python 3.11's StrEnum does;
+    mfmap also runs on 3.10, which has no StrEnum."""
 
     ODOMETRY = "odometry"
     LOOP = "loop"
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
 
 
 @dataclass(frozen=True)
