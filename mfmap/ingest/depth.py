@@ -384,11 +384,13 @@ def _camera(src: LogSource, topics: CameraTopics, types: dict[str, str], infos: 
     if cto_base is None:
         raise CameraProblem(f"{cwhere}: no static transform from '{extr.base_frame}' to colour "
                             f"frame '{cframe}' in /tf_static")
-    return Camera(topics.depth, _info_topic(topics.depth, topics.info, infos) or "", model, to_base,
+    return Camera(topics.depth, info_topic(topics.depth, topics.info, infos) or "", model, to_base,
                   topics.colour, cmodel, cto_base)
 
 
-def _info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
+def info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
+    """The image topic's CameraInfo topic (`given`, else <its namespace>/camera_info), None if the
+    log has no such CameraInfo."""
     if given:
         return given if given in infos else None
     want = _namespace(image_topic) + "/camera_info"
@@ -396,7 +398,7 @@ def _info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
 
 
 def _model(src: LogSource, image_topic: str, given: str, infos: list[str], where: str) -> CameraModel:
-    topic = _info_topic(image_topic, given, infos)
+    topic = info_topic(image_topic, given, infos)
     if topic is None:
         wanted = given or _namespace(image_topic) + "/camera_info"
         raise CameraProblem(f"{where}: no sensor_msgs/CameraInfo on '{wanted}' (intrinsics needed "
