@@ -55,6 +55,7 @@ if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
+    from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
     from mfmap.ingest.source import LogSource
     from mfmap.mapping.config import MappingConfig
@@ -146,6 +147,10 @@ def build(
             extrinsics = src.extrinsics()
             # Before any work: a configured camera's problem stops the build here.
             cameras = find_depth_cameras(src, cfg)
+            from mfmap.ingest.colour import colour_cameras as find_colour_cameras
+
+            colour_cameras, colour_warnings = find_colour_cameras(src, cameras, cfg.camera)
+            warnings += [f"export: {w}" for w in colour_warnings]
             log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
 
             t0 = time.perf_counter()
@@ -190,7 +195,7 @@ def build(
 
             t0 = time.perf_counter()
             trajectory, maps = accumulate(src, seg, mapping, graph, extrinsics, cfg, progress, pool)
-            camera_images = add_depth_cameras(src, cameras, seg, trajectory, maps, cfg)
+            camera_images = add_depth_cameras(src, cameras, seg, trajectory, maps, cfg, colour_cameras)
             timings["accumulate"] = time.perf_counter() - t0
 
             from mfmap.export.cabin import measure_from_log
@@ -550,10 +555,12 @@ def find_depth_cameras(src: LogSource, cfg: MfmapConfig) -> list[Camera]:
 
 
 def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentation,
-                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig) -> dict[str, int]:
-    """The depth cameras' images into the floor maps (images used per depth topic), left out
-    where the lidar scans are: rides, stair walks and elevator cabins."""
-    if not cameras:
+                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig,
+                      colour: Sequence[ColourCamera] = ()) -> dict[str, int]:
+    """The depth cameras' images into the floor maps (images used per depth topic), then the
+    colour cameras' paint on the clouds, left out where the lidar scans are: rides, stair walks
+    and elevator cabins."""
+    if not cameras and not colour:
         return {}
     from mfmap.export.camera import add_cameras
 
@@ -571,8 +578,12 @@ def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentat
             return np.ones(points_base.shape[0], dtype=bool)
         return _outside_cabins(points_base, pose, stamp_ns, shafts)
 
-    return add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
+    used = add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
                        outside)
+    from mfmap.export.lidar_colour import paint_clouds
+
+    paint_clouds(src, list(colour), trajectory, maps, cfg.camera, usable)
+    return used
 
 
 @dataclass(frozen=True)

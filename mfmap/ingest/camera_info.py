@@ -21,6 +21,7 @@ def describe_cameras(path: Path | str, ingest: IngestConfig | None = None,
     """One row per image topic (sensor_msgs/Image, CompressedImage) of the log, and the reasons
     a build would skip a camera."""
     from mfmap.ingest import open_log
+    from mfmap.ingest.colour import colour_cameras
     from mfmap.ingest.depth import (
         CAMERA_INFO,
         COMPRESSED,
@@ -44,7 +45,10 @@ def describe_cameras(path: Path | str, ingest: IngestConfig | None = None,
             cameras, skipped = find_cameras(src, camera)
         except CameraProblem as err:
             cameras, skipped = [], [err.message]
-        used = {c.depth_topic: "depth" for c in cameras}
+        colour, colour_skipped = colour_cameras(src, cameras, camera)
+        skipped += colour_skipped
+        used = {c.topic: "paints the lidar" for c in colour}
+        used.update({c.depth_topic: "depth" for c in cameras})
         used.update({str(c.colour_topic): f"colour of {c.depth_topic}" for c in cameras if c.colour_topic})
         rows = []
         for topic in images:
