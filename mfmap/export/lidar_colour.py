@@ -49,6 +49,7 @@ def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: Trajec
         return 0
     voxel_m = maps.config.cloud_voxel_m
     clouds = {f: maps.cloud(f).astype(np.float64) for f in maps.floor_ids()}
+    tiles = {f: _Tiles(c[:, :2], 2.0 * config.max_range_m) for f, c in clouds.items()}
     best = {f: np.full(c.shape[0], np.inf) for f, c in clouds.items()}
     rgb = {f: np.zeros((c.shape[0], 3), dtype=np.uint8) for f, c in clouds.items()}
     used = 0
@@ -56,9 +57,12 @@ def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: Trajec
         for floor_id, pose, image in _posed_images(src, cam, trajectory, config, usable):
             if floor_id not in clouds:
                 continue
-            world_to_cam = np.asarray(np.linalg.inv(pose @ cam.to_base), dtype=np.float64)
-            idx, colours, z = project_visible(clouds[floor_id], world_to_cam, cam.model, image,
+            cam_to_world = pose @ cam.to_base
+            world_to_cam = np.asarray(np.linalg.inv(cam_to_world), dtype=np.float64)
+            near = tiles[floor_id].around(cam_to_world[:2, 3])
+            sub, colours, z = project_visible(clouds[floor_id][near], world_to_cam, cam.model, image,
                                               config.max_range_m, voxel_m)
+            idx = near[sub]
             nearer = z < best[floor_id][idx]
             best[floor_id][idx[nearer]] = z[nearer]
             rgb[floor_id][idx[nearer]] = colours[nearer]
@@ -68,6 +72,30 @@ def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: Trajec
         if seen.any():
             maps.paint(floor_id, rgb[floor_id], seen)
     return used
+
+
+class _Tiles:
+    """A floor cloud's points by square tiles of the ground plane, to take those near a camera
+    without transforming the whole floor for each image."""
+
+    def __init__(self, xy: F64, size_m: float) -> None:
+        self.size_m = size_m
+        cells = np.floor(xy / size_m).astype(np.int64)
+        keys = cells[:, 0] * 1_000_003 + cells[:, 1] if cells.shape[0] else np.zeros(0, np.int64)
+        self.order = np.argsort(keys, kind="stable")
+        self.keys = keys[self.order]
+
+    def around(self, xy: F64) -> np.ndarray[Any, Any]:
+        """Indices (ascending) of the points in the 3 x 3 tiles around xy: every point within
+        one tile's size of it (a tile twice the paint range: a camera up to 120 degrees wide)."""
+        cx, cy = (int(v) for v in np.floor(np.asarray(xy) / self.size_m))
+        parts = []
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                key = (cx + dx) * 1_000_003 + (cy + dy)
+                lo, hi = np.searchsorted(self.keys, [key, key + 1])
+                parts.append(self.order[lo:hi])
+        return np.sort(np.concatenate(parts))
 
 
 def _posed_images(src: LogSource, cam: ColourCamera, trajectory: Trajectory, config: CameraConfig,
