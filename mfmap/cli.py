@@ -177,11 +177,16 @@ def info(
     from mfmap.ingest.report import render_info
 
     summary = describe_log(log, cfg.ingest, check=check)
+    from mfmap.ingest.camera_info import describe_cameras, render_cameras
+
+    cameras, camera_warnings = describe_cameras(log, cfg.ingest, cfg.camera)
     if as_json:
-        console.print_json(json.dumps(summary.to_json()))
+        console.print_json(json.dumps({**summary.to_json(), **({"cameras": cameras} if cameras else {})}))
     else:
         console.print(render_info(summary))
-    for warning in summary.warnings:
+        if cameras:
+            console.print(render_cameras(cameras))
+    for warning in [*summary.warnings, *camera_warnings]:
         err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
     for problem in summary.problems:
         label = "[red]problem:[/red]" if check else "[yellow]problem:[/yellow]"

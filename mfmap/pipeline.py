@@ -51,6 +51,7 @@ if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
+    from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
     from mfmap.ingest.source import LogSource
     from mfmap.mapping.config import MappingConfig
@@ -151,6 +152,7 @@ class _Stages:
     cfg: MfmapConfig  # the user's, with every decision about how the sensors read
     extrinsics: Extrinsics
     cameras: list[Camera]
+    colour_cameras: list[ColourCamera]
     progress: Progress
     pool: Executor | None
     warnings: list[str]
@@ -188,9 +190,13 @@ class _Stages:
         extrinsics = src.extrinsics()
         # Before any work: a configured camera's problem stops the build here.
         cameras = find_depth_cameras(src, cfg)
+        from mfmap.ingest.colour import colour_cameras as find_colour_cameras
+
+        colour_cameras, colour_warnings = find_colour_cameras(src, cameras, cfg.camera)
+        warnings += [f"export: {w}" for w in colour_warnings]
         log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
-        return cls(log, src, cfg, extrinsics, cameras, progress, pool, warnings, ingest_at,
-                   log_duration_s)
+        return cls(log, src, cfg, extrinsics, cameras, list(colour_cameras), progress, pool,
+                   warnings, ingest_at, log_duration_s)
 
     def floors(self) -> _Floors:
         from mfmap.floors.pipeline import barometer_temperature
@@ -247,7 +253,8 @@ class _Stages:
         with _timed(self.timings, "accumulate"):
             trajectory, maps = accumulate(self.src, seg, mapping, graph, self.extrinsics, self.cfg,
                                           self.progress, self.pool)
-            camera_images = add_depth_cameras(self.src, self.cameras, seg, trajectory, maps, self.cfg)
+            camera_images = add_depth_cameras(self.src, self.cameras, seg, trajectory, maps, self.cfg,
+                                              self.colour_cameras)
         return trajectory, maps, camera_images
 
     def cabins(self, seg: FloorSegmentation, trajectory: Trajectory) -> list[Cabin]:

@@ -6,6 +6,8 @@ Simulates the scenario, builds it with the camera and without (camera.enabled fa
 prints: floors found, checkpoint RMSE per floor, the cloud's mean distance to the true
 surfaces, the colours' agreement with the surfaces' paint, and the grids' recall of the
 occupied cells of the corridor (and of its tables and shelves alone) against the truth.
+Then the 3D lidar painted by a colour camera: tiny-rgbd without its depth topics, built, its
+points' colours against their surfaces' paint.
 """
 
 from __future__ import annotations
@@ -36,10 +38,10 @@ def _build(log: Path, out: Path, camera: bool) -> float:
     return time.perf_counter() - t0
 
 
-def _truth(seed: int) -> tuple[Any, list[Any], Any]:
+def _truth(seed: int, scenario: str = "corridor-rgbd") -> tuple[Any, list[Any], Any]:
     from mfmap.sim.scenarios import SCENARIOS, building_for
 
-    building = building_for(SCENARIOS["corridor-rgbd"], seed)
+    building = building_for(SCENARIOS[scenario], seed)
     boxes = building.static_boxes() + [building.landing_door(k) for k in range(building.n_floors)]
     from mfmap.sim.boxes import make_scene
 
@@ -125,6 +127,67 @@ def recall(truth: set[tuple[int, int]], est: set[tuple[int, int]], tol: int = 1)
     return hit / len(truth)
 
 
+def _without_depth(src: Path, dst: Path) -> None:
+    """The log without its depth camera's topics (a 3D lidar and a colour camera remain),
+    rewritten by mcap's Writer."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        reader = make_reader(fin)
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="depth_figures")
+        schemas: dict[int, int] = {}
+        channels: dict[str, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.topic.startswith("/camera/depth/"):
+                continue
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.topic not in channels:
+                channels[channel.topic] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), channel.metadata)
+            writer.add_message(channels[channel.topic], message.log_time, message.data, message.publish_time)
+        writer.finish()
+
+
+def _corridor_row(sim_dir: Path, out: Path, camera: bool, truth: tuple[Any, list[Any], Any]) -> dict[str, Any]:
+    from mfmap.eval.api import evaluate
+
+    building, boxes, scene = truth
+    build_s = _build(sim_dir / "log.mcap", out, camera)
+    ev = evaluate(out, points=sim_dir / "gt_points.csv", floors=sim_dir / "gt_floors.json")
+    report = json.loads((out / "report.json").read_text())
+    row: dict[str, Any] = {"build_s": build_s, "floors": len(json.loads((out / "floors.json").read_text())["floors"]),
+                           "depth_images": report["counts"].get("depth_images", 0)}
+    row["rmse"] = {k: v for k, v in ev.metrics.items() if "rmse" in k and "floor" in k}
+    row["floor_metrics"] = {k: v for k, v in ev.metrics.items() if k.startswith("floors.")}
+    row["cloud"] = cloud_figures(out, boxes, scene)
+    rec_all, rec_fix = {}, {}
+    for f in range(building.n_floors):
+        est, res = grid_cells(out, f)
+        rec_all[f] = recall(truth_cells(building, f, res, False), est)
+        rec_fix[f] = recall(truth_cells(building, f, res, True), est)
+    row["grid_recall_corridor"] = rec_all
+    row["grid_recall_furniture"] = rec_fix
+    return row
+
+
+def _painted_lidar_row(work: Path, seed: int) -> dict[str, Any]:
+    from mfmap.sim.run import simulate
+
+    sim_dir = work / f"sim_tiny_rgbd{seed}"
+    if not (sim_dir / "log.mcap").exists():
+        simulate("tiny-rgbd", sim_dir, seed=seed)
+    log = work / f"tiny_rgbd_colour_only{seed}.mcap"
+    if not log.exists():
+        _without_depth(sim_dir / "log.mcap", log)
+    out = work / f"build_lidar_painted{seed}"
+    build_s = _build(log, out, True)
+    _, boxes, scene = _truth(seed, "tiny-rgbd")
+    return {"build_s": build_s, "cloud": cloud_figures(out, boxes, scene)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--work", type=Path, default=Path(".cache/depth_figures"))
@@ -132,7 +195,6 @@ def main() -> None:
     args = ap.parse_args()
     import time
 
-    from mfmap.eval.api import evaluate
     from mfmap.sim.run import simulate
 
     work = args.work
@@ -142,27 +204,12 @@ def main() -> None:
     if not (sim_dir / "log.mcap").exists():
         simulate("corridor-rgbd", sim_dir, seed=args.seed)
     sim_s = time.perf_counter() - t0
-    building, boxes, scene = _truth(args.seed)
+    truth = _truth(args.seed)
     rows: dict[str, Any] = {}
     for camera in (True, False):
         name = "camera" if camera else "no_camera"
-        out = work / f"build_{name}{args.seed}"
-        build_s = _build(sim_dir / "log.mcap", out, camera)
-        ev = evaluate(out, points=sim_dir / "gt_points.csv", floors=sim_dir / "gt_floors.json")
-        report = json.loads((out / "report.json").read_text())
-        row: dict[str, Any] = {"build_s": build_s, "floors": len(json.loads((out / "floors.json").read_text())["floors"]),
-                               "depth_images": report["counts"].get("depth_images", 0)}
-        row["rmse"] = {k: v for k, v in ev.metrics.items() if "rmse" in k and "floor" in k}
-        row["floor_metrics"] = {k: v for k, v in ev.metrics.items() if k.startswith("floors.")}
-        row["cloud"] = cloud_figures(out, boxes, scene)
-        rec_all, rec_fix = {}, {}
-        for f in range(building.n_floors):
-            est, res = grid_cells(out, f)
-            rec_all[f] = recall(truth_cells(building, f, res, False), est)
-            rec_fix[f] = recall(truth_cells(building, f, res, True), est)
-        row["grid_recall_corridor"] = rec_all
-        row["grid_recall_furniture"] = rec_fix
-        rows[name] = row
+        rows[name] = _corridor_row(sim_dir, work / f"build_{name}{args.seed}", camera, truth)
+    rows["lidar_painted"] = _painted_lidar_row(work, args.seed)
     print(json.dumps({"simulate_s": sim_s, **rows}, indent=1, default=float))
 
 

@@ -70,7 +70,7 @@ def add_cameras(src: LogSource, cameras: list[Camera], trajectory: Trajectory, m
             hit = pose_at(trajectory, stamp_ns, max_gap_ns)
             if hit is None or not usable(stamp_ns, hit[0]):
                 return False
-            if last and not _moved(last[0], hit[0], config):
+            if last and not moved_enough(last[0], hit[0], config):
                 return False
             last[:] = [hit[0]]
             posed[stamp_ns] = hit
@@ -91,7 +91,7 @@ def add_cameras(src: LogSource, cameras: list[Camera], trajectory: Trajectory, m
     return used
 
 
-def _moved(last: F64, pose: F64, config: CameraConfig) -> bool:
+def moved_enough(last: F64, pose: F64, config: CameraConfig) -> bool:
     delta = np.linalg.inv(last) @ pose
     turn = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(delta[:3, :3]) - 1.0) / 2.0))))
     return bool(np.linalg.norm(delta[:3, 3]) >= config.image_min_motion_m

@@ -99,6 +99,16 @@ class _FloorCloud:
         self._merge()
         return self.points
 
+    def paint(self, rgb: np.ndarray, mask: np.ndarray) -> None:
+        """Colours for the points of cloud() where mask, except points a camera coloured."""
+        self._merge()
+        if self.rgb is None or self.coloured_mask is None:
+            self.rgb = np.zeros((len(self.keys), 3), dtype=np.uint8)
+            self.coloured_mask = np.zeros(len(self.keys), dtype=bool)
+        new = mask & ~self.coloured_mask
+        self.rgb[new] = rgb[new]
+        self.coloured_mask |= new
+
     def colours(self, fill_radius_m: float) -> np.ndarray | None:
         """(N, 3) uint8 colours, None when no camera coloured this cloud. A point no camera saw
         (a lidar return) takes the colour of the nearest coloured point within fill_radius_m,
@@ -186,6 +196,10 @@ class MapAccumulator:
             return  # no lidar view of this floor: no grid to add to
         rel_z = pts[:, 2] + (pose[2, 3] - self.floor_z_m[floor_id])
         grid.add_obstacles(world[(rel_z >= band_m[0]) & (rel_z <= band_m[1]), :2])
+
+    def paint(self, floor_id: int, rgb: np.ndarray, mask: np.ndarray) -> None:
+        """Colour the floor cloud's points (in cloud() order) where mask, keeping a camera's."""
+        self.clouds[floor_id].paint(rgb, mask)
 
     def colours(self, floor_id: int, fill_radius_m: float = 0.2) -> np.ndarray | None:
         return self.clouds[floor_id].colours(fill_radius_m)

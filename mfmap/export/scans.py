@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import Trajectory
     from mfmap.graph.optimize import GraphResult
+    from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
     from mfmap.ingest.source import LogSource
 
@@ -93,10 +94,12 @@ def accumulate(
 
 
 def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentation,
-                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig) -> dict[str, int]:
-    """The depth cameras' images into the floor maps (images used per depth topic), left out
-    where the lidar scans are: rides, stair walks and elevator cabins."""
-    if not cameras:
+                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig,
+                      colour: Sequence[ColourCamera] = ()) -> dict[str, int]:
+    """The depth cameras' images into the floor maps (images used per depth topic), then the
+    colour cameras' paint on the clouds, left out where the lidar scans are: rides, stair walks
+    and elevator cabins."""
+    if not cameras and not colour:
         return {}
     from mfmap.export.camera import add_cameras
 
@@ -115,8 +118,12 @@ def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentat
             return np.ones(points_base.shape[0], dtype=bool)
         return outside_cabins(points_base, pose, stamp_ns, shafts)
 
-    return add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
+    used = add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
                        outside)
+    from mfmap.export.lidar_colour import paint_clouds
+
+    paint_clouds(src, list(colour), trajectory, maps, cfg.camera, usable)
+    return used
 
 
 @dataclass(frozen=True)

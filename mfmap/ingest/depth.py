@@ -35,8 +35,9 @@ DEPTH_ENCODINGS = ("16UC1", "32FC1")
 COLOUR_ENCODINGS = ("rgb8", "bgr8")
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
 
-# compressed_depth_image_transport's ConfigHeader ahead of the PNG: int32 format (0 = PNG,
-# 1 = RVL), float32 depthParam[2] (the inverse-depth quantisation of 32FC1 images).
+# compressed_depth_image_transport's ConfigHeader ahead of the PNG or RVL payload: int32 format
+# (always its INV_DEPTH, 0: the format string says PNG or RVL), float32 depthParam[2] (the
+# inverse-depth quantisation of 32FC1 images).
 _DEPTH_HEADER = struct.Struct("<iff")
 
 
@@ -150,12 +151,16 @@ def _decode_compressed_depth(msg: Any, where: str) -> np.ndarray[Any, np.dtype[n
     data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
     if data.shape[0] <= _DEPTH_HEADER.size:
         raise DecodeError(f"{where}: compressedDepth image of {data.shape[0]} bytes has no data")
-    kind, quant_a, quant_b = _DEPTH_HEADER.unpack(data[: _DEPTH_HEADER.size].tobytes())
-    if kind != 0:
-        raise DecodeError(f"{where}: compressedDepth format {kind} is not supported (PNG only, not RVL)")
-    raw = cv2.imdecode(data[_DEPTH_HEADER.size:], cv2.IMREAD_UNCHANGED)
-    if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
-        raise DecodeError(f"{where}: compressedDepth payload is not a 16-bit single-channel PNG")
+    _, quant_a, quant_b = _DEPTH_HEADER.unpack(data[: _DEPTH_HEADER.size].tobytes())
+    if _compression(fmt, where) == "rvl":
+        from mfmap.ingest.rvl import decode_rvl_image
+
+        raw = decode_rvl_image(data[_DEPTH_HEADER.size:].tobytes(), where)
+    else:
+        png = cv2.imdecode(data[_DEPTH_HEADER.size:], cv2.IMREAD_UNCHANGED)
+        if png is None or png.dtype != np.uint16 or png.ndim != 2:
+            raise DecodeError(f"{where}: compressedDepth payload is not a 16-bit single-channel PNG")
+        raw = np.asarray(png, dtype=np.uint16)
     if encoding == "16UC1":
         depth = raw.astype(np.float32) / np.float32(1000.0)
     else:
@@ -164,6 +169,16 @@ def _decode_compressed_depth(msg: Any, where: str) -> np.ndarray[Any, np.dtype[n
             depth = (np.float32(quant_a) / (raw.astype(np.float32) - np.float32(quant_b))).astype(np.float32)
     depth[(raw == 0) | ~np.isfinite(depth) | (depth <= 0)] = np.nan
     return depth
+
+
+def _compression(fmt: str, where: str) -> str:
+    """'png' or 'rvl' from a compressedDepth format string ("16UC1; compressedDepth rvl"); the
+    older plug-in wrote PNG with no name after "compressedDepth"."""
+    tail = fmt.split(";", 1)[1].strip().split() if ";" in fmt else []
+    name = tail[1].lower() if len(tail) > 1 else "png"
+    if name not in ("png", "rvl"):
+        raise DecodeError(f"{where}: compressedDepth compression '{name}' is not supported (png, rvl)")
+    return name
 
 
 def decode_colour(msg: Any, msgtype: str, where: str) -> np.ndarray[Any, np.dtype[np.uint8]]:
@@ -369,11 +384,13 @@ def _camera(src: LogSource, topics: CameraTopics, types: dict[str, str], infos: 
     if cto_base is None:
         raise CameraProblem(f"{cwhere}: no static transform from '{extr.base_frame}' to colour "
                             f"frame '{cframe}' in /tf_static")
-    return Camera(topics.depth, _info_topic(topics.depth, topics.info, infos) or "", model, to_base,
+    return Camera(topics.depth, info_topic(topics.depth, topics.info, infos) or "", model, to_base,
                   topics.colour, cmodel, cto_base)
 
 
-def _info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
+def info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
+    """The image topic's CameraInfo topic (`given`, else <its namespace>/camera_info), None if the
+    log has no such CameraInfo."""
     if given:
         return given if given in infos else None
     want = _namespace(image_topic) + "/camera_info"
@@ -381,7 +398,7 @@ def _info_topic(image_topic: str, given: str, infos: list[str]) -> str | None:
 
 
 def _model(src: LogSource, image_topic: str, given: str, infos: list[str], where: str) -> CameraModel:
-    topic = _info_topic(image_topic, given, infos)
+    topic = info_topic(image_topic, given, infos)
     if topic is None:
         wanted = given or _namespace(image_topic) + "/camera_info"
         raise CameraProblem(f"{where}: no sensor_msgs/CameraInfo on '{wanted}' (intrinsics needed "

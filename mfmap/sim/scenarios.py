@@ -310,6 +310,16 @@ SCENARIOS: dict[str, ScenarioSpec] = {
             lidar=LidarSpec(beams=16, columns=512),
         ),
         ScenarioSpec(
+            "tiny-rgbd",
+            "tiny with an RGB-D camera (80 x 60, 2 Hz, jpeg colour) on a mast beside the 16x512 "
+            "lidar, whose points its colour images paint (for tests)",
+            2,
+            3.5,
+            _tiny,
+            lidar=LidarSpec(beams=16, columns=512),
+            camera=RgbdSpec(rate_hz=2),
+        ),
+        ScenarioSpec(
             "tiny-harsh",
             "tiny in a real building's air: temperature 0-40 C, stack effect, doors, cabin lag, "
             "weather, the barometer's temperature topic",

@@ -3,7 +3,7 @@
 Every camera looks at one plane whose depth image is computed exactly per pixel, so the decoded
 points can be checked against the plane in metres: cam1 16UC1 millimetres with a jpeg colour
 camera of its own (other frame, size and intrinsics), cam2 32FC1 metres with plumb_bob
-distortion, cam3 16UC1 as compressedDepth PNG.
+distortion, cam3 16UC1 as compressedDepth PNG (or RVL, with the encoder below).
 """
 
 from __future__ import annotations
@@ -51,6 +51,49 @@ def undistort(uv: np.ndarray, k: tuple[float, ...], d: tuple[float, ...]) -> np.
         dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         x, y = (xd - dx) / radial, (yd - dy) / radial
     return np.column_stack([x, y])
+
+
+def rvl_encode(pixels: np.ndarray) -> bytes:
+    """RVL (Wilson, "Fast Lossless Depth Image Compression") of 16-bit pixels, written the way
+    the paper's CompressRVL does it, one nibble at a time: runs of zeros and non-zeros, zigzag
+    deltas in 3-bit groups, nibbles filling 32-bit little-endian words from the top."""
+    words: list[int] = []
+    word, nibbles = 0, 0
+
+    def vle(value: int) -> None:
+        nonlocal word, nibbles
+        while True:
+            nibble = value & 0x7
+            value >>= 3
+            if value:
+                nibble |= 0x8
+            word = ((word << 4) | nibble) & 0xFFFFFFFF
+            nibbles += 1
+            if nibbles == 8:
+                words.append(word)
+                word, nibbles = 0, 0
+            if not value:
+                return
+
+    flat = [int(v) for v in np.asarray(pixels, dtype=np.uint16).ravel()]
+    i, previous = 0, 0
+    while i < len(flat):
+        zeros = 0
+        while i < len(flat) and flat[i] == 0:
+            zeros, i = zeros + 1, i + 1
+        vle(zeros)
+        nonzeros = 0
+        while i + nonzeros < len(flat) and flat[i + nonzeros] != 0:
+            nonzeros += 1
+        vle(nonzeros)
+        for current in flat[i: i + nonzeros]:
+            delta = current - previous
+            vle((delta << 1) ^ (delta >> 31))
+            previous = current
+        i += nonzeros
+    if nibbles:
+        words.append((word << (4 * (8 - nibbles))) & 0xFFFFFFFF)
+    return struct.pack(f"<{len(words)}I", *words)
 
 
 def plane_depth(k: tuple[float, ...], d: tuple[float, ...] | None = None) -> np.ndarray:
@@ -124,8 +167,9 @@ CAM_XYZ = {"cam1_depth": (0.2, 0.0, 0.5), "cam1_color": (0.2, -COLOUR_OFFSET_X, 
 
 
 def camera_items(store: Typestore, drop: Iterable[str] = (), frames: dict[str, str] | None = None,
-                 encodings: dict[str, str] | None = None) -> list[Item]:
-    """(topic, msgtype, log_time_ns, message) of the three cameras and /tf_static."""
+                 encodings: dict[str, str] | None = None, cam3_compression: str = "png") -> list[Item]:
+    """(topic, msgtype, log_time_ns, message) of the three cameras and /tf_static; cam3's
+    compressedDepth as `cam3_compression` ("png" or "rvl")."""
     frames = frames or {}
     encodings = encodings or {}
     out: list[Item] = []
@@ -136,6 +180,8 @@ def camera_items(store: Typestore, drop: Iterable[str] = (), frames: dict[str, s
     ok, png = cv2.imencode(".png", mm)
     assert ok
     cdepth = struct.pack("<iff", 0, 0.0, 0.0) + png.tobytes()
+    if cam3_compression == "rvl":
+        cdepth = struct.pack("<iffII", 0, 0.0, 0.0, W, H) + rvl_encode(mm)
     for i in range(N_IMAGES):
         t = T0_NS + i * DT_NS
         f1, f2, f3 = (frames.get(c, c) for c in ("cam1_depth", "cam2", "cam3"))
@@ -153,7 +199,7 @@ def camera_items(store: Typestore, drop: Iterable[str] = (), frames: dict[str, s
             ("/cam2/depth/camera_info", "sensor_msgs/msg/CameraInfo", t + 1_000_000,
              _info(store, t, f2, W, H, K1, D2)),
             ("/cam3/depth/image_raw/compressedDepth", "sensor_msgs/msg/CompressedImage", t + 2_000_000,
-             _compressed(store, t + 2_000_000, f3, "16UC1; compressedDepth png", cdepth)),
+             _compressed(store, t + 2_000_000, f3, f"16UC1; compressedDepth {cam3_compression}", cdepth)),
             ("/cam3/depth/camera_info", "sensor_msgs/msg/CameraInfo", t + 2_000_000,
              _info(store, t, f3, W, H, K1, (0.0,) * 5)),
         ]
