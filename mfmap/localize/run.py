@@ -290,7 +290,8 @@ class _Localizer:
         from mfmap.localize.track import ScanPrep, Wheels
         from mfmap.mapping.cabin import CabinFilter
         from mfmap.mapping.config import MotionPrior
-        from mfmap.mapping.stage import MotionModel, Timeline
+        from mfmap.mapping.motion import MotionModel
+        from mfmap.mapping.timeline import Timeline
         from mfmap.pipeline import segment_floors
 
         self.src = src
