@@ -21,7 +21,7 @@ from mfmap.mapping.posebook import PoseBook, odometry_information
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
 from mfmap.mapping.scanstep import ScanStep
-from mfmap.mapping.timeline import Segment, Timeline
+from mfmap.mapping.timeline import Segment, SegmentKind, Timeline
 from mfmap.mapping.transitions import Transitions, walk_heading
 from mfmap.mapping.wheelscale import Run, RunScale
 from mfmap.types import (
@@ -73,10 +73,10 @@ class Mapper:
     def add_scan(self, stamp_ns: int, frame_id: str, xyz: F32, t_offset_ns: I64 | None) -> None:
         segment = self.timeline.at(stamp_ns)
         state = self.state
-        if segment.kind == "ride":
+        if segment.kind == SegmentKind.RIDE:
             self._ride_scan(stamp_ns, segment)
             return
-        if segment.kind == "visit" and segment.visit != state.visit:
+        if segment.kind == SegmentKind.VISIT and segment.visit != state.visit:
             self._start_visit(segment, stamp_ns)
         state.scan_index += 1
         has_times = t_offset_ns is not None and len(t_offset_ns) == len(xyz) and len(xyz) > 0
@@ -105,7 +105,7 @@ class Mapper:
             return
         if self._needs_keyframe(step.pose):
             self._keyframe(step.ref_ns, step.points, step.pose, step.match.fitness,
-                           step.match.rmse_m, emit=segment.kind == "visit")
+                           step.match.rmse_m, emit=segment.kind == SegmentKind.VISIT)
         self._record(stamp_ns, step.scan_pose(), step.ref_ns, step.pose,
                      inverse(state.pose) @ step.pose if state.stamp_ns is not None else step.delta,
                      step.dt)

@@ -3,17 +3,24 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
 from mfmap.types import FloorSegmentation, Transition, TransitionKind
 
 
+class SegmentKind(str, Enum):
+    VISIT = "visit"
+    RIDE = "ride"  # in an elevator
+    WALK = "walk"  # on stairs (or a transition of unknown kind)
+
+
 @dataclass(frozen=True)
 class Segment:
     """Where a scan falls: a floor visit, an elevator ride or a walk (stairs) between visits."""
 
-    kind: str  # "visit" | "ride" | "walk"
+    kind: SegmentKind
     visit: int  # the visit (for a transition: the visit before it)
     floor_id: int
     transition: Transition | None = None
@@ -31,6 +38,6 @@ class Timeline:
         v = max(int(np.searchsorted(self._starts, stamp_ns, side="right")) - 1, 0)
         for tr in self.transitions:
             if tr.start_ns <= stamp_ns <= tr.end_ns:
-                kind = "ride" if tr.kind == TransitionKind.ELEVATOR else "walk"
+                kind = SegmentKind.RIDE if tr.kind == TransitionKind.ELEVATOR else SegmentKind.WALK
                 return Segment(kind, v, self.visits[v][0], tr)
-        return Segment("visit", v, self.visits[v][0])
+        return Segment(SegmentKind.VISIT, v, self.visits[v][0])
