@@ -18,7 +18,8 @@ if TYPE_CHECKING:
     from mfmap.localize.mapfolder import BuildingMap
     from mfmap.localize.search import Candidate
     from mfmap.localize.track import ScanPrep, Wheels
-    from mfmap.mapping.stage import MotionModel, Timeline
+    from mfmap.mapping.motion import MotionModel
+    from mfmap.mapping.timeline import Timeline
 
 logger = logging.getLogger(__name__)
 
@@ -62,7 +63,7 @@ class LocalizerState:
     def __init__(self, src: LogSource, building: BuildingMap, cfg: MfmapConfig, hint: Hint | None,
                  warnings: list[str], timings: Timings, progress: Progress) -> None:
         from mfmap.localize.levels import best_hypotheses, floor_hypotheses
-        from mfmap.mapping.stage import Timeline
+        from mfmap.mapping.timeline import Timeline
         from mfmap.pipeline import segment_floors
 
         self.src = src
@@ -135,7 +136,7 @@ def _scan_prep(src: LogSource, cfg: MfmapConfig, timeline: Timeline) -> tuple[Mo
     from mfmap.localize.track import ScanPrep, Wheels
     from mfmap.mapping.cabin import CabinFilter
     from mfmap.mapping.config import MotionPrior
-    from mfmap.mapping.stage import MotionModel
+    from mfmap.mapping.motion import MotionModel
 
     extrinsics = src.extrinsics()
     motion = MotionModel(MotionPrior.AUTO, src.odometry(), src.imu(), extrinsics)

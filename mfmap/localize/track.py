@@ -15,8 +15,8 @@ import numpy as np
 from mfmap.localize.config import LocalizeConfig
 from mfmap.mapping.cabin import CabinFilter
 from mfmap.mapping.geometry import deskew, transform, twist
+from mfmap.mapping.motion import MotionModel
 from mfmap.mapping.registration import IcpTarget, downsample, icp
-from mfmap.mapping.stage import MotionModel
 from mfmap.types import F32, F64, I64, Extrinsics, OdomSeries
 
 # ICP passes of a tracked scan (correspondence distance, Tukey kernel, iterations): the motion

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from mfmap.mapping.geometry import (
 from mfmap.mapping.registration import IcpTarget, Registration, downsample, icp
 from mfmap.types import F64
 
+if TYPE_CHECKING:
+    from mfmap.mapping.config import MappingConfig
+
 
 class AdaptiveThreshold:
     """KISS-ICP's correspondence threshold: 3 sigma of how far the prior was off so far."""
@@ -31,6 +35,11 @@ class AdaptiveThreshold:
         self.floor_m = floor_m
         self._sum_sq = 0.0
         self._count = 0
+
+    @classmethod
+    def from_config(cls, cfg: MappingConfig) -> AdaptiveThreshold:
+        return cls(cfg.icp_initial_threshold_m, cfg.icp_min_motion_m, cfg.max_range_m,
+                   cfg.icp_min_threshold_m)
 
     def update(self, correction: F64) -> None:
         theta = rotation_angle_rad(correction)
@@ -56,6 +65,10 @@ class LocalMap:
         self._frames: deque[tuple[F64, F64]] = deque(maxlen=max_keyframes)  # (position, points)
         self.target: IcpTarget | None = None
         self.size = 0
+
+    @classmethod
+    def from_config(cls, cfg: MappingConfig) -> LocalMap:
+        return cls(cfg.map_voxel_size_m, cfg.local_map_keyframes, cfg.local_map_radius_m)
 
     def clear(self) -> None:
         self._frames.clear()
@@ -105,6 +118,16 @@ class ScanMatcher:
         self.tolerance = tolerance
         self.failures = 0
 
+    @classmethod
+    def from_config(cls, cfg: MappingConfig, local_map: LocalMap,
+                    threshold: AdaptiveThreshold) -> ScanMatcher:
+        return cls(cfg.voxel_size_m, local_map, threshold, cfg.icp_max_iterations,
+                   tolerance=cfg.icp_tolerance,
+                   max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
+                   low_fitness=cfg.icp_gyro_low_fitness,
+                   heading_sigma_deg=cfg.icp_heading_sigma_deg,
+                   fine_kernel_m=cfg.icp_fine_kernel_m)
+
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False,
               gyro_var_rad2: float = 0.0) -> ScanMatch:
         """Register against the local map from `predicted`.
@@ -141,21 +164,31 @@ class ScanMatcher:
         if self.map.target is None or len(points_base) < 10:
             self._heading_var = None  # a new map: the heading starts from the registration
             return ScanMatch(predicted, 0.0, 0.0, False)
-        source = downsample(points_base, self.voxel_m)
-        max_distance = self.threshold.value_m
-        result: Registration = icp(source, self.map.target, predicted, max_distance,
-                                   max(max_distance / 3.0, 0.5 * self.voxel_m),
-                                   self.max_iterations, self.tolerance)
-        if self.fine_kernel_m > 0 and result.fitness >= self.min_fitness:
-            # The same correspondences, a kernel at the lidar's noise (see `fine_kernel_m`).
-            fine = icp(source, self.map.target, result.transform, max_distance,
-                       self.fine_kernel_m, self.max_iterations, self.tolerance)
-            result = Registration(fine.transform, result.fitness, result.rmse_m)
-            self.refined += 1
+        result = self._icp(downsample(points_base, self.voxel_m), self.map.target, predicted)
         if result.fitness < self.min_fitness:
             self.failures += 1
             self._propagate(gyro_prior, gyro_var_rad2)
             return ScanMatch(predicted, result.fitness, result.rmse_m, False)
+        return self._accept(result, predicted, gyro_prior, gyro_var_rad2)
+
+    def _icp(self, source: F64, target: IcpTarget, predicted: F64) -> Registration:
+        """The registration, refined with the fine kernel when it is good enough."""
+        max_distance = self.threshold.value_m
+        result: Registration = icp(source, target, predicted, max_distance,
+                                   max(max_distance / 3.0, 0.5 * self.voxel_m),
+                                   self.max_iterations, self.tolerance)
+        if self.fine_kernel_m > 0 and result.fitness >= self.min_fitness:
+            # The same correspondences, a kernel at the lidar's noise (see `fine_kernel_m`).
+            fine = icp(source, target, result.transform, max_distance,
+                       self.fine_kernel_m, self.max_iterations, self.tolerance)
+            result = Registration(fine.transform, result.fitness, result.rmse_m)
+            self.refined += 1
+        return result
+
+    def _accept(self, result: Registration, predicted: F64, gyro_prior: bool,
+                gyro_var_rad2: float) -> ScanMatch:
+        """A registration good enough to take: its heading overruled by the gyro's when they
+        disagree too much (see `match`), else blended with it (`_blend_heading`)."""
         correction = inverse(predicted) @ result.transform
         limit = self.max_gyro_disagreement_rad
         if result.fitness < self.low_fitness:

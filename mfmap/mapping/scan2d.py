@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -15,6 +16,9 @@ from scipy.spatial import cKDTree
 from mfmap.mapping.geometry import inverse, transform, wrap_angle, yaw_pose, yaw_rad
 from mfmap.mapping.odometry import AdaptiveThreshold, ScanMatch
 from mfmap.types import F64
+
+if TYPE_CHECKING:
+    from mfmap.mapping.config import MappingConfig
 
 
 def grid_downsample_2d(xy: F64, voxel_m: float) -> F64:
@@ -131,6 +135,13 @@ class Scan2DMatcher:
         self.max_iterations = max_iterations
         self.min_fitness = min_fitness
         self.failures = 0
+
+    @classmethod
+    def from_config(cls, cfg: MappingConfig, threshold: AdaptiveThreshold) -> Scan2DMatcher:
+        return cls(cfg.voxel_size_m, cfg.map_voxel_size_m, cfg.local_map_keyframes, threshold,
+                   cfg.icp_max_iterations, fine_kernel_m=cfg.icp_fine_kernel_m,
+                   max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
+                   low_fitness=cfg.icp_gyro_low_fitness)
 
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False) -> ScanMatch:
         """Register against the local 2D map from `predicted`.

@@ -65,3 +65,41 @@ def rescale(start: F64, pose: F64, scale: float) -> F64:
     rel = inverse(start) @ pose
     rel[:3, 3] *= scale
     return start @ rel
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run of visits after an elevator ride: the held pose the odometry restarted from, and
+    the indices of its first keyframe and first scan pose."""
+
+    start: F64
+    first_keyframe: int
+    first_scan_pose: int
+
+
+class RunScale:
+    """The wheels' scale over the run of visits since the last elevator ride (see
+    `Mapper.finish_run`), and the sums over the runs before it for the report."""
+
+    def __init__(self, min_travel_m: float) -> None:
+        self.min_travel_m = min_travel_m
+        self.current = WheelScale(min_travel_m)
+        self.totals = (0.0, 0.0)  # lidar . wheels and |wheels|^2 over finished runs
+        self.run: Run | None = None
+
+    def finish(self) -> tuple[float | None, Run | None]:
+        """End the run: its scale (None if not calibrated) and where it started."""
+        scale, run = self.current.value, self.run
+        dot, norm = self.totals
+        self.totals = (dot + self.current.dot, norm + self.current.norm)
+        self.current = WheelScale(self.min_travel_m)
+        self.run = None
+        return scale, run
+
+    @property
+    def dot(self) -> float:
+        return self.totals[0] + self.current.dot
+
+    @property
+    def norm(self) -> float:
+        return self.totals[1] + self.current.norm

@@ -84,7 +84,7 @@ def worker_cpus(workers: int) -> list[int | None]:
 
 # What a mapping job needs (open3d, the mapper, the readers). A caller whose pool also runs a
 # later stage's jobs names that stage's modules too, so this package never imports them.
-MAPPING_MODULES = ("mfmap.ingest", "mfmap.mapping.stage")
+MAPPING_MODULES = ("mfmap.ingest", "mfmap.mapping.chunks")
 
 
 def warm_up(modules: tuple[str, ...] = MAPPING_MODULES) -> None:

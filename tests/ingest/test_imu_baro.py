@@ -17,7 +17,7 @@ import room_log as room
 from mfmap.ingest import describe_log, open_log
 from mfmap.ingest.config import IngestConfig
 from mfmap.mapping.config import MotionPrior
-from mfmap.mapping.stage import MotionModel, _State
+from mfmap.mapping.motion import MotionModel, TrackState
 from mfmap.types import Role
 from pipelines.relayout import Options, relayout
 
@@ -57,7 +57,7 @@ def test_imu_mounted_rotated_predicts_the_same_motion(source: Callable[[int], Pa
             to_base = ext.get(imu.frame_id)
             assert to_base is not None
             model = MotionModel(MotionPrior.IMU, None, imu, ext)
-            state = _State(stamp_ns=room.T0_NS + 25 * room.PERIOD_NS)
+            state = TrackState(stamp_ns=room.T0_NS + 25 * room.PERIOD_NS)
             delta = model.predict(state, room.T0_NS + 27 * room.PERIOD_NS)
             out.append((delta[:3, :3], imu.accel_m_s2 @ to_base[:3, :3].T))
     (level_turn, level_g), (turned_turn, turned_g) = out

@@ -292,7 +292,7 @@ def test_stairs_logs_map_in_parallel_chunks_that_meet_at_each_walks_end(
         true = [truth[int(np.argmin(np.abs(truth_ns - stamps[k])))] for k in (first - 1, first)]
         true_step = inverse(true[0]) @ true[1]
         assert np.linalg.norm(step[:3, 3] - true_step[:3, 3]) < 0.02, (step, true_step)
-        # The walk's scans take the gyro's heading ramped to the weighed turn (`_walk_heading`),
+        # The walk's scans take the gyro's heading ramped to the weighed turn (`transitions.walk_heading`),
         # the visit's first keeps its registration's: the step turns by up to half a degree
         # in one process too (0.42 deg here).
         assert abs(np.degrees(yaw_rad(step) - yaw_rad(true_step))) < 1.0

@@ -11,11 +11,12 @@ import numpy as np
 
 from mfmap.ingest import open_log
 from mfmap.mapping import map_floors
+from mfmap.mapping.chunks import STAIRS_PRIME_NS, plan_chunks
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_rad
 from mfmap.mapping.metrics import read_tum, visit_errors
 from mfmap.mapping.posegraph import optimize_all_visits, scan_trajectory
-from mfmap.mapping.stage import STAIRS_PRIME_NS, Timeline, _chunks
+from mfmap.mapping.timeline import Timeline
 from mfmap.types import FloorSegmentation, MappingResult, Role
 
 SegFn = Callable[[Path], FloorSegmentation]
@@ -29,7 +30,7 @@ def _run(folder: Path, seg: FloorSegmentation, workers: int) -> MappingResult:
 def test_chunks_split_at_elevator_rides_and_stair_walks(sim_run: Callable[..., Path],
                                                         gt_floors: SegFn) -> None:
     seg = gt_floors(sim_run("tiny"))  # floor 0, elevator, floor 1
-    chunks = _chunks(Timeline(seg))
+    chunks = plan_chunks(Timeline(seg))
     visits = seg.visits()
     assert [c.first_visit for c in chunks] == [0, 1]
     assert chunks[0].start_ns is None and chunks[1].end_ns is None
@@ -41,8 +42,8 @@ def test_chunks_split_at_elevator_rides_and_stair_walks(sim_run: Callable[..., P
     seg = gt_floors(sim_run("stairs"))
     walks = seg.transitions
     visits = seg.visits()
-    assert [c.first_visit for c in _chunks(Timeline(seg))] == [0]  # split_at_stairs is off
-    chunks = _chunks(Timeline(seg), stairs=True)
+    assert [c.first_visit for c in plan_chunks(Timeline(seg))] == [0]  # split_at_stairs is off
+    chunks = plan_chunks(Timeline(seg), stairs=True)
     assert [(c.first_visit, c.after_stairs, c.stop_in_visit) for c in chunks] == [
         (0, False, 1), (1, True, 2), (2, True, None)]
     for k in (1, 2):
@@ -65,7 +66,7 @@ def test_a_scan_at_the_rides_end_stays_on_the_ride(sim_run: Callable[..., Path],
                                            for s, e in f.visits)) for f in seg.floors)
     seg = replace(seg, floors=floors, transitions=(replace(ride, end_ns=end_ns),))
     assert Timeline(seg).at(end_ns).kind == "ride"
-    chunks = _chunks(Timeline(seg))
+    chunks = plan_chunks(Timeline(seg))
     assert chunks[0].end_ns == end_ns and chunks[1].start_ns == end_ns + 1
     result = _run(folder, seg, 2)
     # Posed, as every ride scan, off the last keyframe before the ride (visit 0). Off visit 1's
