@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from mfmap.config import MfmapConfig, dump_config, load_config
+from mfmap.config import RENAMED_KEYS, MfmapConfig, config_from_dict, dump_config, load_config
 from mfmap.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,7 +63,7 @@ def test_missing_and_non_mapping_file(tmp_path: Path) -> None:
 def test_fast_preset_loads_and_changes_only_mapping() -> None:
     cfg = load_config(ROOT / "sample_configs" / "fast.yaml")
     default = MfmapConfig()
-    assert (cfg.mapping.voxel_size_m, cfg.mapping.map_voxel_size_m, cfg.mapping.scan_stride) == (0.4, 0.2, 2)
+    assert (cfg.mapping.voxel_size_m, cfg.mapping.local_map.voxel_size_m, cfg.mapping.scan_stride) == (0.4, 0.2, 2)
     assert cfg.model_copy(update={"mapping": default.mapping}) == default
 
 
@@ -75,13 +75,17 @@ def test_fast_preset_loads_and_changes_only_mapping() -> None:
     ("mapping: {voxel_size_m: 1.0e-9}", r"'mapping\.voxel_size_m': .* \(got 1e-09\)"),
     ("mapping: {voxel_size_m: .nan}", r"'mapping\.voxel_size_m': Input should be a finite number"),
     ("mapping: {min_range_m: 50}", r"'mapping': min_range_m \(50\) must be below max_range_m \(40\)"),
-    ("export: {grid_resolution_m: 1.0e-6}", r"'export\.grid_resolution_m': Input should be greater"),
-    ("export: {grid_resolution_m: 0.005, grid_max_range_m: 500}", r"makes even one scan's grid 4e\+10 cells"),
-    ("export: {grid_band_m: [1.8, 0.1]}", r"grid_band_m \(1\.8, 0\.1\) must be \(min, max\)"),
+    ("export: {grid: {resolution_m: 1.0e-6}}", r"'export\.grid\.resolution_m': Input should be greater"),
+    ("export: {grid: {resolution_m: 0.005, max_range_m: 500}}", r"makes even one scan's grid 4e\+10 cells"),
+    ("export: {grid: {band_m: [1.8, 0.1]}}", r"'export\.grid': band_m \(1\.8, 0\.1\) must be \(min, max\)"),
     ("ingest: {max_cloud_mb: -1}", r"'ingest\.max_cloud_mb': Input should be greater than 0"),
-    ("graph: {interfloor_voxel_m: .inf}", r"'graph\.interfloor_voxel_m': Input should be a finite number"),
-    ("graph: {outlier_chi2_p: 1.5}", r"'graph\.outlier_chi2_p': Input should be less than 1"),
-    ("floors: {stop_vertical_speed_m_s: 0.5}", r"vertical speeds must be stop < min < max"),
+    ("graph: {interfloor: {voxel_m: .inf}}", r"'graph\.interfloor\.voxel_m': Input should be a finite number"),
+    ("graph: {interfloor: {band_m: [1.5, 0.5]}}", r"'graph\.interfloor': band_m \(1\.5, 0\.5\) must be"),
+    ("graph: {robust: {outlier_chi2_p: 1.5}}", r"'graph\.robust\.outlier_chi2_p': Input should be less than 1"),
+    ("floors: {transitions: {stop_vertical_speed_m_s: 0.5}}",
+     r"'floors\.transitions': vertical speeds must be stop < min < max"),
+    ("mapping: {cabin: {size_m: [2.4, 0]}}", r"'mapping\.cabin': size_m \(2\.4, 0\.0\) must be two sizes"),
+    ("mapping: {icp: {max_iterations: 0}}", r"'mapping\.icp\.max_iterations': Input should be greater"),
     ("mapping: {workers: 100000}", r"'mapping\.workers': Input should be less than or equal to 256"),
     ("eval: {fscore_thresholds_m: [0.05, -1]}", r"must be one or more distances in \(0, 100\] m"),
     ("ingest: {extrinsics: {lidar: {xyz: [0, 0, 500]}}}",
@@ -104,3 +108,38 @@ def test_a_binary_config_is_one_line(tmp_path: Path) -> None:
                          capture_output=True, text=True)
     assert res.returncode == 1
     assert res.stderr.strip() == f"mfmap: error: {path}: not a text file (byte 128 is not UTF-8)"
+
+
+def test_a_flat_key_of_before_the_sections_names_its_new_key(tmp_path: Path) -> None:
+    path = tmp_path / "old.yaml"
+    path.write_text("mapping:\n  icp_max_iterations: 10\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value) == (
+        f"{path}: unknown key 'mapping.icp_max_iterations' (it is now 'mapping.icp.max_iterations')")
+
+
+def _leaves(data: dict[str, object], prefix: str = "") -> list[str]:
+    out: list[str] = []
+    for key, value in data.items():
+        if isinstance(value, dict) and key not in ("topics", "extrinsics"):
+            out += _leaves(value, f"{prefix}{key}.")
+        else:
+            out.append(prefix + key)
+    return out
+
+
+def test_every_renamed_key_is_refused_and_its_new_key_exists() -> None:
+    leaves = set(_leaves(MfmapConfig().model_dump(mode="json")))
+    assert len(RENAMED_KEYS) == 114
+    assert len(set(RENAMED_KEYS.values())) == len(RENAMED_KEYS)
+    for old, new in RENAMED_KEYS.items():
+        assert new in leaves and old not in leaves
+        stage, key = old.split(".")
+        with pytest.raises(ConfigError, match=f"it is now '{new}'"):
+            config_from_dict({stage: {key: None}})
+
+
+def test_ablation_switches_have_their_own_section() -> None:
+    switches = MfmapConfig().graph.ablation.model_dump()
+    assert len(switches) == 8 and all(value is True for value in switches.values())

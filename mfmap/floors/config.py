@@ -1,8 +1,12 @@
+"""floors stage configuration: barometer filtering, transitions and floor clustering."""
+
 from __future__ import annotations
 
 from enum import Enum
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+_SECTION = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class FilterMethod(str, Enum):
@@ -12,19 +16,11 @@ class FilterMethod(str, Enum):
     SLIDING_MEAN = "sliding_mean"  # the LeGO-LOAM elevator paper's: mean of the last 30 samples
 
 
-class FloorsConfig(BaseModel):
-    """Barometer filtering, transition detection and floor clustering."""
+class FilterConfig(BaseModel):
+    """How the barometer's height trace is cleaned and smoothed."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = _SECTION
 
-    temperature_k: float = Field(
-        295.0, ge=150.0, le=400.0,
-        description="air temperature for pressure -> height (the barometer's Temperature topic "
-        "sets it when this is not given)",
-    )
-    min_floor_height_m: float = Field(
-        2.0, gt=0, description="smallest height change that is a floor change"
-    )
     method: FilterMethod = Field(
         FilterMethod.RTS, description="rts (spike rejection + RTS smoother) or sliding_mean (the LeGO-LOAM elevator paper's filter)"
     )
@@ -46,6 +42,13 @@ class FloorsConfig(BaseModel):
     accel_noise_m_s2: float = Field(
         0.3, gt=0, description="RTS process noise: vertical acceleration (1 sigma over 1 s, m/s^2)"
     )
+
+
+class TransitionsConfig(BaseModel):
+    """Which height changes are transitions between floors, and the height change of each."""
+
+    model_config = _SECTION
+
     min_vertical_speed_m_s: float = Field(
         0.08, gt=0, description="a transition must reach this vertical speed (stairs, elevators)"
     )
@@ -76,30 +79,59 @@ class FloorsConfig(BaseModel):
     level_window_s: float = Field(
         60.0, gt=0, description="floor level before/after a transition: robust line over this much of the visit (s)"
     )
-    transition_window_s: float = Field(
+    window_s: float = Field(
         120.0, ge=0,
         description="height change across each transition, which places the floors: one fit over up "
         "to this much of the raw trace on each side (a level either side, a shared drift slope, door "
         "steps left out; s); 0: robust lines over level_window_s",
     )
-    cluster_tolerance_m: float = Field(
-        1.0, gt=0, description="visits whose elevations differ by less than this are the same floor"
-    )
-    moving_speed_m_s: float = Field(
-        0.05, gt=0, description="odometry horizontal speed above which the robot is moving"
-    )
-    moving_yaw_rate_rad_s: float = Field(
-        0.1, gt=0, description="odometry/IMU yaw rate above which the robot is moving"
-    )
-    moving_accel_std_m_s2: float = Field(
-        0.3, gt=0, description="IMU horizontal acceleration std (over 1 s) above which it is moving"
-    )
 
     @model_validator(mode="after")
-    def _consistent(self) -> FloorsConfig:
+    def _consistent(self) -> TransitionsConfig:
         if not self.stop_vertical_speed_m_s < self.min_vertical_speed_m_s < self.max_vertical_speed_m_s:
             raise ValueError(
                 "vertical speeds must be stop < min < max (stop_vertical_speed_m_s "
                 f"{self.stop_vertical_speed_m_s:g}, min_vertical_speed_m_s "
                 f"{self.min_vertical_speed_m_s:g}, max_vertical_speed_m_s {self.max_vertical_speed_m_s:g})")
         return self
+
+
+class MovingConfig(BaseModel):
+    """When the robot counts as moving (an elevator ride is a height change while it stands)."""
+
+    model_config = _SECTION
+
+    speed_m_s: float = Field(
+        0.05, gt=0, description="odometry horizontal speed above which the robot is moving"
+    )
+    yaw_rate_rad_s: float = Field(
+        0.1, gt=0, description="odometry/IMU yaw rate above which the robot is moving"
+    )
+    accel_std_m_s2: float = Field(
+        0.3, gt=0, description="IMU horizontal acceleration std (over 1 s) above which it is moving"
+    )
+
+
+class FloorsConfig(BaseModel):
+    """Barometer filtering, transition detection and floor clustering."""
+
+    model_config = _SECTION
+
+    temperature_k: float = Field(
+        295.0, ge=150.0, le=400.0,
+        description="air temperature for pressure -> height (the barometer's Temperature topic "
+        "sets it when this is not given)",
+    )
+    min_floor_height_m: float = Field(
+        2.0, gt=0, description="smallest height change that is a floor change"
+    )
+    cluster_tolerance_m: float = Field(
+        1.0, gt=0, description="visits whose elevations differ by less than this are the same floor"
+    )
+    filter: FilterConfig = Field(
+        default_factory=FilterConfig, description="cleaning and smoothing the height trace"
+    )
+    transitions: TransitionsConfig = Field(
+        default_factory=TransitionsConfig, description="height changes that are transitions"
+    )
+    moving: MovingConfig = Field(default_factory=MovingConfig, description="when the robot is moving")

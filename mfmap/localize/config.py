@@ -5,6 +5,19 @@ from __future__ import annotations
 from pydantic import BaseModel, ConfigDict, Field
 
 
+class SearchConfig(BaseModel):
+    """The global search for the robot's place in the map (coarse grid, then ICP)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    resolution_m: float = Field(0.25, gt=0, description="coarse cell")
+    yaw_step_deg: float = Field(3.0, gt=0, description="coarse yaw step")
+    range_m: float = Field(25.0, gt=0, description="query points within this range of the robot")
+    candidates: int = Field(8, ge=1, description="places refined by ICP")
+    query_voxel_m: float = Field(0.15, gt=0, description="voxel of the query")
+    query_window_s: float = Field(1.0, gt=0, description="scans over this long make one query")
+
+
 class LocalizeConfig(BaseModel):
     """Placing a new log in a built map: floor hypotheses, global search, tracking."""
 
@@ -56,16 +69,6 @@ class LocalizeConfig(BaseModel):
         description="the global search matches the walls and furniture this high above the "
         "floor (floor and ceiling say nothing about x, y and yaw)",
     )
-    search_resolution_m: float = Field(0.25, gt=0, description="global search: coarse cell")
-    search_yaw_step_deg: float = Field(3.0, gt=0, description="global search: coarse yaw step")
-    search_range_m: float = Field(
-        25.0, gt=0, description="global search: query points within this range of the robot"
-    )
-    search_candidates: int = Field(8, ge=1, description="global search: places refined by ICP")
-    query_voxel_m: float = Field(0.15, gt=0, description="global search: voxel of the query")
-    query_window_s: float = Field(
-        1.0, gt=0, description="global search: scans over this long make one query"
-    )
     fix_fitness: float = Field(
         0.75, ge=0, le=1,
         description="a global search result is a fix only at this fitness or more",
@@ -75,7 +78,7 @@ class LocalizeConfig(BaseModel):
         description="... and only when every distinct place (another floor, or farther than "
         "distinct_m or distinct_deg on the same one) leaves this many times as many of the "
         "query's points unfit (1 - fitness): on floors that share their corridors the right "
-        "floor fits 0.92-0.97 of a query, the next one 0.89-0.92",
+        "floor fits most of a query, and the next one nearly as much",
     )
     distinct_m: float = Field(1.0, gt=0, description="see fix_misfit_ratio")
     distinct_deg: float = Field(10.0, gt=0, description="see fix_misfit_ratio")
@@ -88,3 +91,6 @@ class LocalizeConfig(BaseModel):
         "floor); a log that never fits stops searching and is reported not localised",
     )
     html_report: bool = Field(True, description="write report.html")
+    search: SearchConfig = Field(
+        default_factory=SearchConfig, description="global search: coarse grid of places, then ICP"
+    )
