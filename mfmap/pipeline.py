@@ -408,7 +408,7 @@ def optimise(
     from mfmap.graph.optimize import optimize_building
 
     gravity = gravity_at_keyframes(imu, mapping.keyframes, extrinsics,
-                                   odom=odom if cfg.graph.gravity_minus_odometry else None)
+                                   odom=odom if cfg.graph.gravity.minus_odometry else None)
     return optimize_building(
         mapping.keyframes,
         mapping.edges,

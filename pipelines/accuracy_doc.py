@@ -273,7 +273,7 @@ def render(logs: list[LogFigures], sources: list[str], command: str) -> str:
         "baselines), then `python -m pipelines.accuracy_doc`, or pass the runs' `results.json`;",
         "- what each factor of the graph is worth: `python pipelines/bench_build.py two-floor "
         "three-floor-revisit stairs --ablations` prints the same checkpoint table with each "
-        "factor kind switched off in turn (`graph.barometer_factors`, `transition_height`, "
+        "factor kind switched off in turn (`graph.ablation.barometer_factors`, `transition_height`, "
         "`elevator_continuity`, `inter_floor_registration`, `imu_ride_height`).",
         "",
     ]

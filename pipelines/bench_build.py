@@ -95,8 +95,8 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
         for name, switches in ABLATIONS.items():
             variant = cfg.model_copy(deep=True)
             for key, value in switches.items():
-                setattr(variant.graph, key, value)
-            variant.export.cloud_source = CloudSource.KEYFRAMES
+                setattr(variant.graph.ablation, key, value)
+            variant.export.cloud.source = CloudSource.KEYFRAMES
             variant.export.html_report = False
             graph = pipeline.optimise(mapping, seg, pressure, imu, extrinsics, variant, pipeline.NullProgress(),
                                      odom=odom)

@@ -14,7 +14,7 @@ import resource
 import statistics
 import time
 
-from mfmap.floors.config import FilterMethod, FloorsConfig
+from mfmap.floors.config import FilterConfig, FilterMethod, FloorsConfig
 from mfmap.floors.segment import segment_pressure
 from mfmap.sim.traces import Leg, synthetic_trace
 
@@ -48,7 +48,7 @@ def main() -> None:
     print(f"trace: {n} samples, {trace.times_s[-1] / 3600:.2f} h at {args.rate:g} Hz, "
           f"{len(trace.transitions)} floor changes, {len(trace.elevations)} floors")
     for method in (FilterMethod.RTS, FilterMethod.SLIDING_MEAN):
-        cfg = FloorsConfig(method=method)
+        cfg = FloorsConfig(filter=FilterConfig(method=method))
         times = []
         for _ in range(args.repeat):
             t0 = time.perf_counter()

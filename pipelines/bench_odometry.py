@@ -91,7 +91,7 @@ class _ListSource:
 
 def run_mfmap(folder: Path, stride: int, loops: bool, prior: str) -> dict[str, float]:
     from mfmap.mapping import map_floors
-    from mfmap.mapping.config import MappingConfig, MotionPrior
+    from mfmap.mapping.config import LoopsConfig, MappingConfig, MotionConfig, MotionPrior
     from mfmap.mapping.posegraph import scan_trajectory
     from mfmap.types import Floor, FloorSegmentation
 
@@ -100,7 +100,7 @@ def run_mfmap(folder: Path, stride: int, loops: bool, prior: str) -> dict[str, f
     seg = FloorSegmentation((Floor(0, 0.0, 0.0, ((start_ns, end_ns),)),), (),
                             np.array([start_ns, end_ns]), np.zeros(2), np.zeros(2),
                             np.zeros(2, dtype=np.int32))
-    cfg = MappingConfig(scan_stride=stride, loop_closure=loops, motion_prior=MotionPrior(prior))
+    cfg = MappingConfig(scan_stride=stride, loops=LoopsConfig(closure=loops), motion=MotionConfig(prior=MotionPrior(prior)))
     rss_before = _peak_rss_mb()
     t0 = time.perf_counter()
     result = map_floors(_ListSource(clouds, odom, imu), seg, cfg, extrinsics)

@@ -2,7 +2,7 @@
 
 For every simulator scenario (its own barometer model), two harsh synthetic walks and the two
 real IPIN 2023 phone traces, both methods run the same transition/floor pipeline; only the
-filtering differs (`floors.method`). Prints a markdown table: floor count right?, floor sequence
+filtering differs (`floors.filter.method`). Prints a markdown table: floor count right?, floor sequence
 right?, worst transition timing error (s), worst elevation error (m).
 
     .venv/bin/python pipelines/compare_floors.py [--seeds 0 1]
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mfmap.floors.config import FilterMethod, FloorsConfig
+from mfmap.floors.config import FilterConfig, FilterMethod, FloorsConfig
 from mfmap.floors.io import read_pressure_csv
 from mfmap.floors.motion import MotionEvidence, motion_from_odometry
 from mfmap.floors.segment import segment_pressure
@@ -146,7 +146,7 @@ def main() -> None:
     for name, pressure, motion, truth in cases:
         row = [name, str(truth.n_floors)]
         for method in (FilterMethod.SLIDING_MEAN, FilterMethod.RTS):
-            seg = segment_pressure(pressure, motion, FloorsConfig(method=method))
+            seg = segment_pressure(pressure, motion, FloorsConfig(filter=FilterConfig(method=method)))
             s = score(seg, truth)
             totals[method][0] += int(s.count_ok)
             totals[method][1] += int(s.sequence_ok)

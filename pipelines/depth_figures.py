@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-BAND_M = (0.1, 1.8)  # the build's default grid band (export.grid_band_m)
+BAND_M = (0.1, 1.8)  # the build's default grid band (export.grid.band_m)
 CORRIDOR = (0.0, 13.0, -1.0, 1.0)  # the stretch the robot walks (x0, x1, y0, y1)
 
 

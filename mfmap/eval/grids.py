@@ -228,11 +228,13 @@ def _grid_max_range_m(out: Path) -> float:
     """The build's free-space ray range (its config.yaml), else the default."""
     import yaml
 
-    from mfmap.export.config import ExportConfig
+    from mfmap.export.config import GridConfig
 
-    default = float(ExportConfig.model_fields["grid_max_range_m"].default)
+    default = float(GridConfig.model_fields["max_range_m"].default)
     config = out / "config.yaml"
     if not config.is_file():
         return default
     export = (yaml.safe_load(config.read_text()) or {}).get("export") or {}
-    return float(export.get("grid_max_range_m", default))
+    # A map built before the keys were grouped in sections has the flat key.
+    grid = export.get("grid") or {}
+    return float(grid.get("max_range_m", export.get("grid_max_range_m", default)))

@@ -33,7 +33,7 @@ class GridBuilder:
     n_bearings: int = 1440
     max_range_m: float = 30.0
     window_bins: int = 2  # each bearing is bounded by the nearest return within this many bins
-    max_bytes: float = 2048e6  # the grid's memory while it is drawn (`ExportConfig.max_grid_mb`)
+    max_bytes: float = 2048e6  # the grid's memory while it is drawn (`ExportConfig.grid.max_mb`)
     polygons: list[np.ndarray] = field(default_factory=list)  # (M, 2) float32 world xy
 
     cell_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -117,9 +117,9 @@ class GridBuilder:
             raise MissingDataError(
                 f"a floor's occupancy grid would be {width} x {height} cells "
                 f"({(hi[0] - lo[0]):.0f} x {(hi[1] - lo[1]):.0f} m at {self.resolution_m:g} m), "
-                f"over export.max_grid_mb ({self.max_bytes / 1e6:g} MB): the map spreads further "
+                f"over export.grid.max_mb ({self.max_bytes / 1e6:g} MB): the map spreads further "
                 "than a building (a lidar that gives too few points, or a wrong trajectory); "
-                "raise export.grid_resolution_m or export.max_grid_mb if the building is that big")
+                "raise export.grid.resolution_m or export.grid.max_mb if the building is that big")
         free = np.zeros((height, width), dtype=np.uint8)
         scale = self.resolution_m / (1 << _SHIFT)
         for poly in self.polygons:

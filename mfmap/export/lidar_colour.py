@@ -47,7 +47,7 @@ def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: Trajec
     """Paint the floor clouds' points that the colour images see; returns the images used."""
     if not cameras or not maps.floor_ids():
         return 0
-    voxel_m = maps.config.cloud_voxel_m
+    voxel_m = maps.config.cloud.voxel_m
     clouds = {f: maps.cloud(f).astype(np.float64) for f in maps.floor_ids()}
     tiles = {f: _Tiles(c[:, :2], 2.0 * config.max_range_m) for f, c in clouds.items()}
     best = {f: np.full(c.shape[0], np.inf) for f, c in clouds.items()}

@@ -141,7 +141,7 @@ class MapAccumulator:
         self.last_view: dict[int, F64] = {}
         self.scans = 0
         self.images = 0  # depth images added
-        self.min_hits = config.grid_min_hits
+        self.min_hits = config.grid.min_hits
 
     def add(self, floor_id: int, pose: F64, points_base: np.ndarray, force_view: bool = False) -> None:
         """One scan (or keyframe) in the base frame, at its optimised base-in-world pose."""
@@ -149,29 +149,29 @@ class MapAccumulator:
             return
         cfg = self.config
         pts = np.asarray(points_base, dtype=np.float64)
-        pts = pts[np.einsum("ij,ij->i", pts, pts) >= cfg.cloud_min_range_m**2]
+        pts = pts[np.einsum("ij,ij->i", pts, pts) >= cfg.cloud.min_range_m**2]
         world = pts @ pose[:3, :3].T + pose[:3, 3]
-        cloud = self.clouds.setdefault(floor_id, _FloorCloud(cfg.cloud_voxel_m))
+        cloud = self.clouds.setdefault(floor_id, _FloorCloud(cfg.cloud.voxel_m))
         cloud.add(world)
         self.scans += 1
         grid = self.grids.setdefault(
-            floor_id, GridBuilder(cfg.grid_resolution_m, max_range_m=cfg.grid_max_range_m,
-                                  max_bytes=cfg.max_grid_mb * 1e6)
+            floor_id, GridBuilder(cfg.grid.resolution_m, max_range_m=cfg.grid.max_range_m,
+                                  max_bytes=cfg.grid.max_mb * 1e6)
         )
-        if cfg.grid_level_band:
+        if cfg.grid.level_band:
             # Heights in the robot's frame: a ground robot stands level on its floor, and an error
             # of a fraction of a degree in the pose's roll/pitch would lift the floor seen 6-10 m
             # away into the band (arcs of false walls).
             rel_z = pts[:, 2] + (pose[2, 3] - self.floor_z_m[floor_id])
         else:
             rel_z = world[:, 2] - self.floor_z_m[floor_id]
-        band = world[(rel_z >= cfg.grid_band_m[0]) & (rel_z <= cfg.grid_band_m[1]), :2]
+        band = world[(rel_z >= cfg.grid.band_m[0]) & (rel_z <= cfg.grid.band_m[1]), :2]
         last = self.last_view.get(floor_id)
         moved = last is None or force_view
         if last is not None and not moved:
             delta = np.linalg.inv(last) @ pose
             turn = abs(math.degrees(math.atan2(delta[1, 0], delta[0, 0])))
-            moved = bool(np.hypot(delta[0, 3], delta[1, 3]) >= cfg.grid_view_spacing_m or turn >= 10.0)
+            moved = bool(np.hypot(delta[0, 3], delta[1, 3]) >= cfg.grid.view_spacing_m or turn >= 10.0)
         if moved:
             grid.add_view(pose[:2, 3], band)
             self.last_view[floor_id] = pose.copy()
@@ -188,7 +188,7 @@ class MapAccumulator:
             return
         pts = np.asarray(points_base, dtype=np.float64)
         world = pts @ pose[:3, :3].T + pose[:3, 3]
-        cloud = self.clouds.setdefault(floor_id, _FloorCloud(self.config.cloud_voxel_m))
+        cloud = self.clouds.setdefault(floor_id, _FloorCloud(self.config.cloud.voxel_m))
         cloud.add(world, rgb)
         self.images += 1
         grid = self.grids.get(floor_id)

@@ -64,7 +64,7 @@ def accumulate(
              if tr.kind != TransitionKind.ELEVATOR]
     trajectory = optimised_trajectory(mapping, graph.poses, rides, walks)
     maps = MapAccumulator(cfg.export, dict(graph.floor_z_m))
-    if cfg.export.cloud_source == CloudSource.KEYFRAMES or trajectory.stamps_ns.shape[0] == 0:
+    if cfg.export.cloud.source == CloudSource.KEYFRAMES or trajectory.stamps_ns.shape[0] == 0:
         maps.min_hits = 1  # a keyframe cloud already merges several scans
         for kf in sorted(mapping.keyframes, key=lambda k: k.stamp_ns):
             maps.add(kf.floor_id, graph.poses[kf.id], kf.cloud, force_view=True)
@@ -118,7 +118,7 @@ def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentat
             return np.ones(points_base.shape[0], dtype=bool)
         return outside_cabins(points_base, pose, stamp_ns, shafts)
 
-    used = add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid_band_m, usable,
+    used = add_cameras(src, cameras, trajectory, maps, cfg.camera, cfg.export.grid.band_m, usable,
                        outside)
     from mfmap.export.lidar_colour import paint_clouds
 

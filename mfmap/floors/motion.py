@@ -73,7 +73,7 @@ def motion_from_odometry(odom: OdomSeries, cfg: FloorsConfig) -> MotionEvidence:
     smooth_speed = ndimage.uniform_filter1d(speed, size=_window(odom.stamp_ns, 0.2), mode="nearest")
     speed = ndimage.median_filter(speed, size=size, mode="nearest")
     yaw_rate = ndimage.median_filter(yaw_rate, size=size, mode="nearest")
-    moving = (speed > cfg.moving_speed_m_s) | (yaw_rate > cfg.moving_yaw_rate_rad_s)
+    moving = (speed > cfg.moving.speed_m_s) | (yaw_rate > cfg.moving.yaw_rate_rad_s)
     return MotionEvidence(odom.stamp_ns.copy(), moving, "odometry", smooth_speed)
 
 
@@ -89,5 +89,5 @@ def motion_from_imu(imu: ImuSeries, cfg: FloorsConfig) -> MotionEvidence:
     mean_sq = ndimage.uniform_filter1d(acc**2, size=size, axis=0, mode="nearest")
     accel_std = np.sqrt(np.maximum(mean_sq - mean**2, 0.0).sum(axis=1))
     yaw_rate = ndimage.median_filter(np.abs(imu.gyro_rad_s[:, 2]), size=size, mode="nearest")
-    moving = (accel_std > cfg.moving_accel_std_m_s2) | (yaw_rate > cfg.moving_yaw_rate_rad_s)
+    moving = (accel_std > cfg.moving.accel_std_m_s2) | (yaw_rate > cfg.moving.yaw_rate_rad_s)
     return MotionEvidence(imu.stamp_ns.copy(), moving, "imu")

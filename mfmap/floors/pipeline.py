@@ -79,4 +79,4 @@ def barometer_temperature(src: LogSource, cfg: MfmapConfig, warnings: list[str])
     temperature_k = median_c + 273.15
     warnings.append(f"floors: barometer's height scale at {median_c:.1f} deg C (median of {temperature.topic})")
     floors = cfg.floors.model_copy(update={"temperature_k": temperature_k})
-    return cfg.model_copy(update={"floors": floors}), cfg.graph.temperature_sigma_k / temperature_k
+    return cfg.model_copy(update={"floors": floors}), cfg.graph.barometer.temperature_sigma_k / temperature_k

@@ -47,8 +47,8 @@ def motion_runs(trace: FilteredTrace, cfg: FloorsConfig) -> list[Run]:
     runs: list[Run] = []
     for sign in (1, -1):
         sv = sign * v
-        core = np.concatenate(([0], np.cumsum(sv > cfg.min_vertical_speed_m_s)))
-        for i0, i1 in true_runs(sv > cfg.stop_vertical_speed_m_s):
+        core = np.concatenate(([0], np.cumsum(sv > cfg.transitions.min_vertical_speed_m_s)))
+        for i0, i1 in true_runs(sv > cfg.transitions.stop_vertical_speed_m_s):
             if core[i1] - core[i0] > 0:
                 runs.append(Run(i0, i1, sign))
     runs.sort(key=lambda r: r.i0)
@@ -65,7 +65,7 @@ def _drop_pulses(runs: list[Run], trace: FilteredTrace, cfg: FloorsConfig) -> li
     partial change followed at once by its undoing.
     """
     min_h = cfg.min_floor_height_m
-    max_len = round(cfg.max_transient_s / trace.grid.dt_s)
+    max_len = round(cfg.filter.max_transient_s / trace.grid.dt_s)
     drop: set[int] = set()
     for k in range(len(runs) - 1):
         a, b = runs[k], runs[k + 1]
@@ -95,8 +95,8 @@ def stay_test(motion: MotionEvidence | None, cfg: FloorsConfig, dt_s: float, sta
         a, b = start_ns + round(i0 * dt_s * 1e9), start_ns + round(i1 * dt_s * 1e9)
         path = motion.path_m(a, b) if motion is not None else None
         if path is not None:
-            return path >= cfg.landing_max_path_m
-        if (i1 - i0) * dt_s < cfg.min_visit_s:
+            return path >= cfg.transitions.landing_max_path_m
+        if (i1 - i0) * dt_s < cfg.transitions.min_visit_s:
             return False
         moving = motion.fraction_moving(a, b) if motion is not None else None
         return moving is None or moving >= 0.1
@@ -118,7 +118,7 @@ def join_partial_runs(
     blockers = [r for r in runs if abs(r.change_m) >= _BLOCK_RUN_FRACTION * min_h]
     kept = [r for r in runs if abs(r.change_m) >= _NOISE_RUN_FRACTION * min_h]
     kept = [Run(r.i0, r.i1, r.sign, r.change_m) for r in _drop_pulses(kept, trace, cfg)]
-    max_gap = round(cfg.max_pause_s / trace.grid.dt_s)
+    max_gap = round(cfg.transitions.max_pause_s / trace.grid.dt_s)
     h = trace.filtered_m
 
     def abrupt(r: Run) -> bool:

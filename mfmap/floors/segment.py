@@ -179,8 +179,8 @@ def segment_pressure(
     runs, changes, times, near_misses = find_transitions(trace, cfg, motion, int(stamp_ns[0]))
     warnings.extend(near_misses)
     bounds, kinds = _bounds(stamp_ns, t_s, runs, times, trace, motion, cfg)
-    if cfg.transition_window_s > 0:
-        changes = _fitted_changes(grid, bounds, changes, int(stamp_ns[0]), cfg.transition_window_s)
+    if cfg.transitions.window_s > 0:
+        changes = _fitted_changes(grid, bounds, changes, int(stamp_ns[0]), cfg.transitions.window_s)
     # Revisits are recognised on the fitted changes: the robust lines' are good enough to find
     # the transitions, but a stairwell's own pressure held over the approach to the flight can
     # put one 0.6 m off where the fit is 0.35 m off (a simulated building with harsh air going

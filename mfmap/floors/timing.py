@@ -140,6 +140,6 @@ def stairs_from_standstill(
     """A climb runs from standstill to standstill: the height only starts to change a step or
     two into it, so odometry places its ends better than the barometer (within 3 s of them)."""
     within_ns = 3_000_000_000
-    before = motion.standstill_near(start_ns, within_ns, cfg.moving_speed_m_s, before=True)
-    after = motion.standstill_near(end_ns, within_ns, cfg.moving_speed_m_s, before=False)
+    before = motion.standstill_near(start_ns, within_ns, cfg.moving.speed_m_s, before=True)
+    after = motion.standstill_near(end_ns, within_ns, cfg.moving.speed_m_s, before=False)
     return (before if before is not None else start_ns, after if after is not None else end_ns)

@@ -42,26 +42,26 @@ def filter_height(grid: Grid, cfg: FloorsConfig) -> FilteredTrace:
     """Spike rejection and smoothing of a uniformly sampled height trace."""
     values = grid.values
     dt_s = grid.dt_s
-    if cfg.method is FilterMethod.SLIDING_MEAN:
-        filtered = sliding_mean(values, cfg.sliding_window_samples)
+    if cfg.filter.method is FilterMethod.SLIDING_MEAN:
+        filtered = sliding_mean(values, cfg.filter.sliding_window_samples)
         speed = np.gradient(filtered, dt_s) if values.shape[0] > 1 else np.zeros_like(filtered)
         noise = robust_noise_sigma(values)
         return FilteredTrace(grid, values, filtered, speed, filtered, noise, 0)
-    half = max(1, round(cfg.spike_window_s / dt_s))
-    despiked, spikes = hampel(values, half, cfg.spike_threshold_sigma)
+    half = max(1, round(cfg.filter.spike_window_s / dt_s))
+    despiked, spikes = hampel(values, half, cfg.filter.spike_threshold_sigma)
     median = running_median_1s(despiked, dt_s)
     despiked, _pulses = remove_transients(
-        despiked, dt_s, cfg.max_transient_s, _MAX_PULSE_FRACTION * cfg.min_floor_height_m, median
+        despiked, dt_s, cfg.filter.max_transient_s, _MAX_PULSE_FRACTION * cfg.min_floor_height_m, median
     )
-    if cfg.noise_m is not None:
-        noise = cfg.noise_m
+    if cfg.filter.noise_m is not None:
+        noise = cfg.filter.noise_m
     else:
         one_second = max(1, round(1.0 / dt_s))
         noise = max(robust_noise_sigma(despiked), robust_noise_sigma(despiked, one_second))
     # A quantised, nearly noiseless sensor would give a zero sigma and a filter that smooths
     # nothing; a centimetre floor keeps the smoother sensible.
     noise = max(noise, 0.01)
-    filtered, speed = rts_smooth(despiked, dt_s, noise, cfg.accel_noise_m_s2)
+    filtered, speed = rts_smooth(despiked, dt_s, noise, cfg.filter.accel_noise_m_s2)
     # Steps are judged on the median before pulse removal: a removed pulse no longer matters.
     return FilteredTrace(
         grid, despiked, filtered, speed, despiked, noise, spikes, step_size(median, dt_s), running_median_1s(despiked, dt_s)

@@ -57,7 +57,7 @@ def _levels_across(runs: list[Run], trace: FilteredTrace, cfg: FloorsConfig) -> 
     level = trace.level_smooth_m if trace.level_smooth_m is not None else trace.level_m
     n = level.shape[0]
     dt_s = trace.grid.dt_s
-    w = max(1, round(cfg.level_window_s / dt_s))
+    w = max(1, round(cfg.transitions.level_window_s / dt_s))
     sub = max(1, round(0.5 / dt_s))  # the smoothed level is correlated over ~1 s anyway
     times_s = np.arange(n, dtype=np.float64) * dt_s
     out = []
@@ -124,7 +124,7 @@ def _times(
 ) -> list[tuple[float, float]]:
     """Each run's (start, end) in grid seconds: the ramp fit, its kind hinted by the motion."""
     dt_s = trace.grid.dt_s
-    if cfg.method is FilterMethod.RTS:
+    if cfg.filter.method is FilterMethod.RTS:
         hints: list[TransitionKind | None] | None = None
         if motion is not None:
             kinds = [run_kind(motion, r, dt_s, start_ns) for r in runs]
@@ -153,8 +153,8 @@ def _feasible(
     # Rest to rest, a height change d takes at least 2 sqrt(d / a_max) even at full thrust;
     # a pair of pressure steps (door slammed, then the HVAC) is much faster.
     feasible = [
-        v <= cfg.max_vertical_speed_m_s
-        and d >= 2.0 * np.sqrt(abs(c) / cfg.max_vertical_accel_m_s2)
+        v <= cfg.transitions.max_vertical_speed_m_s
+        and d >= 2.0 * np.sqrt(abs(c) / cfg.transitions.max_vertical_accel_m_s2)
         and not step_like(r, c, trace, min_h)
         for r, c, d, v in zip(runs, changes, spans, speeds, strict=True)
     ]

@@ -95,10 +95,10 @@ LOOSE_TILT_RAD = math.radians(5.0)
 
 def robust_model(config: GraphConfig, model: Any, kernel_name: RobustKernel | None = None) -> Any:
     kernel: Any
-    if (kernel_name or config.robust_kernel) == RobustKernel.CAUCHY:
-        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(config.robust_k)
+    if (kernel_name or config.robust.kernel) == RobustKernel.CAUCHY:
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(config.robust.k)
     else:
-        kernel = gtsam.noiseModel.mEstimator.Huber.Create(config.robust_k)
+        kernel = gtsam.noiseModel.mEstimator.Huber.Create(config.robust.k)
     return gtsam.noiseModel.Robust.Create(kernel, model)
 
 

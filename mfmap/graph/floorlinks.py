@@ -89,7 +89,7 @@ def add_height_ties(
     centimetres of height (6 cm off their floor's level for the keyframes of the simulator's
     tiny-2d building).
     """
-    sig = builder.config.height_tie_sigma_m
+    sig = builder.config.heights.tie_sigma_m
     model = robust_model(builder.config, gtsam.noiseModel.Isotropic.Sigma(1, sig))
     for kf in kfs:
         if kf.floor_id < 0:
@@ -134,21 +134,21 @@ def add_interfloor(
 ) -> list[FloorMatch]:
     floor_z = median_floor_z(kfs, initial)
     clouds = {
-        f: floor_points(kfs, initial, f, config.interfloor_band_m, floor_z[f]) for f in floor_ids
+        f: floor_points(kfs, initial, f, config.interfloor.band_m, floor_z[f]) for f in floor_ids
     }
     if any(len(c) < 200 for c in clouds.values()):
         # A 2D scanner's returns all lie at its own height, usually below the band: use them all.
         clouds = {f: floor_points(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
-    yaw = math.radians(config.interfloor_sigma_yaw_deg)
-    sig_xy = config.interfloor_sigma_xy_m
+    yaw = math.radians(config.interfloor.sigma_yaw_deg)
+    sig_xy = config.interfloor.sigma_xy_m
     tilt = LOOSE_TILT_RAD
     register = functools.partial(
         register_floors,
-        voxel_m=config.interfloor_voxel_m,
-        min_fitness=config.interfloor_min_fitness,
-        ambiguity_ratio=config.interfloor_ambiguity_ratio,
-        max_correction_m=config.interfloor_max_correction_m,
-        max_correction_deg=config.interfloor_max_correction_deg,
+        voxel_m=config.interfloor.voxel_m,
+        min_fitness=config.interfloor.min_fitness,
+        ambiguity_ratio=config.interfloor.ambiguity_ratio,
+        max_correction_m=config.interfloor.max_correction_m,
+        max_correction_deg=config.interfloor.max_correction_deg,
         seed=config.seed,
     )
     pairs = list(itertools.pairwise(floor_ids))

@@ -132,7 +132,7 @@ def _consistent(edge: PoseEdge, initial: dict[int, F64], config: GraphConfig) ->
     rel = np.linalg.inv(initial[edge.i]) @ initial[edge.j]
     delta = np.linalg.inv(np.asarray(edge.measured)) @ rel
     angle = math.degrees(math.acos(float(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0))))
-    return bool(np.linalg.norm(delta[:3, 3]) <= config.loop_gate_m and angle <= config.loop_gate_deg)
+    return bool(np.linalg.norm(delta[:3, 3]) <= config.robust.loop_gate_m and angle <= config.robust.loop_gate_deg)
 
 
 def optimize_building(
@@ -271,9 +271,9 @@ def _add_factors(
     )
     rides, calibration = add_transitions(builder, values, kfs, initial_poses, segmentation, config,
                                          sensors.imu, walks, sensors.scale_prior_sigma, warnings)
-    if config.same_floor_height_tie:
+    if config.ablation.same_floor_height_tie:
         add_height_ties(builder, values, kfs, initial_poses)
-    if config.gravity_factors:
+    if config.ablation.gravity_factors:
         _add_gravity(builder, kfs, sensors.gravity_body, config)
     return rides, calibration
 
@@ -323,7 +323,7 @@ def _add_edges(
             information[5, 5] = FREE_SIGMA**-2
         model, sqrt_info = edge_model(
             config, information,
-            RobustKernel.CAUCHY if edge.kind != "odometry" else config.robust_kernel,
+            RobustKernel.CAUCHY if edge.kind != "odometry" else config.robust.kernel,
         )
         factor = gtsam.BetweenFactorPose3(X(edge.i), X(edge.j), gtsam.Pose3(edge.measured), model)
         builder.add(edge.kind, factor, sqrt_info)
@@ -339,7 +339,7 @@ def _add_gravity(
     builder: Builder, kfs: list[Keyframe], gravity_body: dict[int, F64] | None, config: GraphConfig
 ) -> None:
     """Roll and pitch of every keyframe from the measured up direction (level without one)."""
-    sig = math.radians(config.gravity_sigma_deg)
+    sig = math.radians(config.gravity.sigma_deg)
     up = gtsam.Unit3(np.array([0.0, 0.0, 1.0]))
     for kf in kfs:
         g = None if gravity_body is None else gravity_body.get(kf.id)
@@ -366,7 +366,7 @@ def _register_and_optimize(
     iterations = 0
     matches: list[FloorMatch] = []
     floor_ids = sorted({k.floor_id for k in kfs if k.floor_id >= 0})
-    if config.inter_floor_registration and len(floor_ids) > 1:
+    if config.ablation.inter_floor_registration and len(floor_ids) > 1:
         phase1 = {k.id: np.asarray(result.atPose3(X(k.id)).matrix()) for k in kfs}
         matches = add_interfloor(builder, kfs, phase1, floor_ids, segmentation, config,
                                  executor)
@@ -382,7 +382,7 @@ def _register_and_optimize(
 
 def _count_outliers(builder: Builder, values: Any, result: Any, config: GraphConfig) -> None:
     """Per factor kind: the summed error before and after, and the residuals beyond the gate."""
-    threshold = {d: float(chi2.ppf(config.outlier_chi2_p, d)) for d in (1, 2, 6)}
+    threshold = {d: float(chi2.ppf(config.robust.outlier_chi2_p, d)) for d in (1, 2, 6)}
     for entry in builder.entries:
         stats = builder.stats[entry.kind]
         stats.error_initial += float(entry.factor.error(values))
@@ -390,7 +390,7 @@ def _count_outliers(builder: Builder, values: Any, result: Any, config: GraphCon
         residual = np.asarray(entry.factor.unwhitenedError(result), dtype=np.float64)
         d2 = float(np.sum((entry.sqrt_info @ residual) ** 2))
         stats.max_mahalanobis = max(stats.max_mahalanobis, math.sqrt(d2))
-        if d2 > threshold.get(len(residual), float(chi2.ppf(config.outlier_chi2_p, len(residual)))):
+        if d2 > threshold.get(len(residual), float(chi2.ppf(config.robust.outlier_chi2_p, len(residual)))):
             stats.outliers += 1
 
 
@@ -431,25 +431,25 @@ def _add_barometer(
     temperature_k: float,
     warnings: list[str],
 ) -> None:
-    if not config.barometer_factors:
+    if not config.ablation.barometer_factors:
         return
     if pressure is None or len(pressure) == 0:
         warnings.append("graph: no barometer, barometric factors skipped")
         return
     stamps = np.array([k.stamp_ns for k in kfs], dtype=np.int64)
-    if config.baro_source == BaroSource.FILTERED and seg is not None and len(seg.stamp_ns) > 1:
+    if config.barometer.source == BaroSource.FILTERED and seg is not None and len(seg.stamp_ns) > 1:
         # The floors stage's offline-filtered trace: spikes and door/HVAC transients removed.
         filtered = PressureSeries(seg.stamp_ns, np.asarray(seg.height_filtered_m, dtype=np.float64))
-        height = pressure_at(filtered, stamps, config.baro_window_s)
+        height = pressure_at(filtered, stamps, config.barometer.window_s)
     else:
-        p_pa = pressure_at(pressure, stamps, config.baro_window_s)
+        p_pa = pressure_at(pressure, stamps, config.barometer.window_s)
         height = pressure_to_height_m(p_pa, float(pressure.pressure_pa[0]), temperature_k)
     converter = gtsam.BarometricFactor()
-    model = robust_model(config, gtsam.noiseModel.Isotropic.Sigma(1, config.baro_sigma_m))
+    model = robust_model(config, gtsam.noiseModel.Isotropic.Sigma(1, config.barometer.sigma_m))
     for k, kf in enumerate(kfs):
         baro_kpa = float(converter.baroOut(float(height[k])))
         factor = gtsam.BarometricFactor(X(kf.id), B(k), baro_kpa, model)
-        builder.add("barometer", factor, np.eye(1) / config.baro_sigma_m)
+        builder.add("barometer", factor, np.eye(1) / config.barometer.sigma_m)
         values.insert(B(k), float(height[k] - initial[kf.id][2, 3]))
     builder.add(
         "bias_prior",
@@ -459,7 +459,7 @@ def _add_barometer(
     )
     for k in range(len(kfs) - 1):
         dt_s = max((kfs[k + 1].stamp_ns - kfs[k].stamp_ns) / 1e9, 1e-3)
-        sig = config.bias_random_walk_m_sqrt_s * math.sqrt(dt_s)
+        sig = config.barometer.bias_random_walk_m_sqrt_s * math.sqrt(dt_s)
         if kfs[k + 1].visit != kfs[k].visit:
             # Across a transition the bias is free: the keyframes' barometric heights would
             # otherwise measure the transition's height a second time, uncalibrated (its scale

@@ -90,14 +90,14 @@ def add_transitions(
     an x, y, yaw disagreement that the robust kernel turns down does not also turn down the height.
     Returns one report entry per transition and the barometer's calibration."""
     rides: list[dict[str, Any]] = []
-    prior = (1.0, config.baro_scale_sigma if scale_prior_sigma is None else scale_prior_sigma)
+    prior = (1.0, config.barometer.scale_sigma if scale_prior_sigma is None else scale_prior_sigma)
     if seg is None:
         seg = FloorSegmentation((), (), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0),
                                 np.zeros(0, dtype=np.int32))
-    yaw = math.radians(config.elevator_sigma_yaw_deg)
-    sig_xy = config.elevator_sigma_xy_m
+    yaw = math.radians(config.elevator.sigma_yaw_deg)
+    sig_xy = config.elevator.sigma_xy_m
     tilt = LOOSE_TILT_RAD
-    trace = raw_trace(seg) if config.transition_window_s > 0 and len(seg.stamp_ns) > 0 else None
+    trace = raw_trace(seg) if config.heights.transition_window_s > 0 and len(seg.stamp_ns) > 0 else None
     measured_heights = _Heights([], {}, {})
     for index, tr in enumerate(seg.transitions):
         ends = _ride_ends(kfs, tr.start_ns, tr.end_ns)
@@ -112,7 +112,7 @@ def add_transitions(
         measured_heights.items.append(
             _measure(seg, index, (a, b), config, imu, walks, entry, trace, measured_heights.walk_of)
         )
-        if config.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
+        if config.ablation.elevator_continuity and tr.kind == TransitionKind.ELEVATOR:
             # The mapping stage holds x, y and yaw through the ride: the initial relative pose
             # is the measurement.
             measured = relative_level(initial[a.id], initial[b.id], tr.height_change_m)
@@ -166,14 +166,14 @@ def _measure(
     tr = seg.transitions[index]
     a, b = ends
     item = TransitionHeights(index, tr.kind, tr.from_floor, tr.to_floor, None, None)
-    if config.transition_height:
+    if config.ablation.transition_height:
         baro_dz, baro_sigma = _transition_height(seg, index, config, entry, trace)
         item.baro = Measurement("barometer", baro_dz, baro_sigma)
     else:
         item.baro_reason = "off"
     if tr.kind == TransitionKind.ELEVATOR:
         item.scale_true, item.scale_true_reason = _imu_height(tr.start_ns, tr.end_ns, imu, config, entry)
-    elif not config.walk_height:
+    elif not config.ablation.walk_height:
         item.scale_true_reason = "off"
     elif (a.id, b.id) in walks:
         w = walks[(a.id, b.id)]
@@ -200,15 +200,15 @@ def _weigh(
     used, and add them as factors; a stair walk with no transition gets the lidar's climb."""
     items, walk_of = measured.items, measured.walk_of
     start_floor = next((k.floor_id for k in kfs if k.floor_id >= 0), 0)
-    calibration = heights.calibrate(items, prior, config.baro_offset_sigma_m)
-    heights.decide(items, calibration, start_floor, config.height_gate_sigma)
+    calibration = heights.calibrate(items, prior, config.barometer.offset_sigma_m)
+    heights.decide(items, calibration, start_floor, config.heights.gate_sigma)
     if calibration.usable and calibration.pairs > 0:
         # Again on the measurements kept, and decided again on that calibration.
-        calibration = heights.calibrate(items, prior, config.baro_offset_sigma_m, used_only=True)
-        heights.decide(items, calibration, start_floor, config.height_gate_sigma)
+        calibration = heights.calibrate(items, prior, config.barometer.offset_sigma_m, used_only=True)
+        heights.decide(items, calibration, start_floor, config.heights.gate_sigma)
     warnings.extend(calibration.warnings)
     _add_heights(builder, values, items, measured.keys, walk_of, calibration)
-    if config.walk_height:
+    if config.ablation.walk_height:
         # A walk the floors stage has no transition for (no barometer): the lidar's climb alone.
         matched = {(w.i, w.j) for w in walk_of.values()}
         for pair, walk in walks.items():
@@ -284,7 +284,7 @@ def height_keys(a: Keyframe, b: Keyframe, config: GraphConfig) -> tuple[int, int
     keyframes, over the simulator's two-floor, three-floor-revisit and stairs buildings, three
     seeds each). The keyframes where there are no ties.
     """
-    if config.same_floor_height_tie and a.floor_id >= 0 and b.floor_id >= 0 and a.floor_id != b.floor_id:
+    if config.ablation.same_floor_height_tie and a.floor_id >= 0 and b.floor_id >= 0 and a.floor_id != b.floor_id:
         return Fl(a.floor_id), Fl(b.floor_id)
     return X(a.id), X(b.id)
 
@@ -295,8 +295,8 @@ def _transition_height(
     """The barometer's height change across transition `index` and its sigma: the fit on the raw
     trace either side (mfmap.floors.levels.level_change) where it runs, else the floors stage's."""
     tr = seg.transitions[index]
-    if config.transition_window_s > 0:
-        fit = level_change(seg, index, config.transition_window_s, trace=trace)
+    if config.heights.transition_window_s > 0:
+        fit = level_change(seg, index, config.heights.transition_window_s, trace=trace)
         entry["baro_fit"] = fit.reason
         if fit.height_change_m is not None:
             sigma = math.hypot(fit.sigma_m, BARO_MODEL_SIGMA_M)
@@ -305,8 +305,8 @@ def _transition_height(
             entry["baro_window_s"] = round(fit.window_s, 1)
             entry["floors_height_change_m"] = round(tr.height_change_m, 4)
             return fit.height_change_m, sigma
-    entry["baro_sigma_m"] = config.transition_sigma_z_m
-    return tr.height_change_m, config.transition_sigma_z_m
+    entry["baro_sigma_m"] = config.heights.transition_sigma_z_m
+    return tr.height_change_m, config.heights.transition_sigma_z_m
 
 
 def _imu_height(
@@ -317,7 +317,7 @@ def _imu_height(
     entry: dict[str, Any],
 ) -> tuple[Measurement | None, str]:
     """The IMU's height change across one ride (mfmap.graph.ride), or why there is none."""
-    if not config.imu_ride_height:
+    if not config.ablation.imu_ride_height:
         entry["imu"] = "off"
         return None, "off"
     ride = ride_height(imu, start_ns, end_ns)

@@ -49,8 +49,8 @@ class Searching(LocalizerState):
         q.last_ns = stamp_ns
         if len(q.chains) % QUERY_STRIDE == 1 and not self.prep.in_cabin(stamp_ns, q.chains[i]):
             q.clouds.append((i, self.prep.points(stamp_ns, frame_id, xyz, t_offset_ns, q.chains[i],
-                                                 self.lc.query_voxel_m)))
-        window_ns = int(self.lc.query_window_s * 1e9)
+                                                 self.lc.search.query_voxel_m)))
+        window_ns = int(self.lc.search.query_window_s * 1e9)
         if stamp_ns - q.start_ns < window_ns or stamp_ns < self.next_search_ns or len(q.clouds) < 3:
             # Keep the query to the last window of scans.
             while len(q.clouds) > 3 and stamp_ns - self.track.stamps_ns[q.clouds[0][0]] > window_ns:
@@ -113,7 +113,7 @@ class Searching(LocalizerState):
 
         to_last = inverse(q.chains[i])
         parts = [transform(pts, to_last @ q.chains[k]) for k, pts in q.clouds]
-        return downsample(np.concatenate(parts), self.lc.query_voxel_m)
+        return downsample(np.concatenate(parts), self.lc.search.query_voxel_m)
 
     def _candidates(self, points: F64, level: F64, floors: list[int]) -> list[Candidate]:
         """The best places on each floor, refined, best first."""
@@ -131,9 +131,9 @@ class Searching(LocalizerState):
                 if hint.floor is None or hint.floor == floor_id:
                     places.append((floor_id, hint.x_m, hint.y_m, math.radians(hint.yaw_deg), 1.0))
                 continue
-            found = coarse_places(floor.search_field(lc.search_resolution_m), band,
-                                  lc.search_yaw_step_deg, lc.search_range_m,
-                                  lc.search_candidates, lc.distinct_m, lc.distinct_deg)
+            found = coarse_places(floor.search_field(lc.search.resolution_m), band,
+                                  lc.search.yaw_step_deg, lc.search.range_m,
+                                  lc.search.candidates, lc.distinct_m, lc.distinct_deg)
             places += [(floor_id, *place) for place in found]
         # Places far below the best on the coarse field do not become the best by ICP.
         top = max((p[4] for p in places), default=0.0)
@@ -246,7 +246,7 @@ class Probing(Searching):
 
     def _probe(self, start_ns: int, end_ns: int, floor: int) -> float:
         """The best fitness on `floor` of a query from the middle of a visit."""
-        window = int(self.lc.query_window_s * 1e9)
+        window = int(self.lc.search.query_window_s * 1e9)
         mid = (start_ns + end_ns) // 2
         lo, hi = max(start_ns, mid - window // 2), min(end_ns, mid + window // 2)
         q = Query(lo)
@@ -259,7 +259,7 @@ class Probing(Searching):
             last, prev = k, cloud.stamp_ns
             if k % QUERY_STRIDE == 0:
                 q.clouds.append((k, self.prep.points(cloud.stamp_ns, cloud.frame_id, cloud.xyz,
-                                                     cloud.t_offset_ns, chain, self.lc.query_voxel_m)))
+                                                     cloud.t_offset_ns, chain, self.lc.search.query_voxel_m)))
         if len(q.clouds) < 2:
             return 0.0
         q.last_ns = prev if prev is not None else lo
@@ -268,7 +268,7 @@ class Probing(Searching):
 
         to_last = inverse(q.chains[last])
         points = downsample(np.concatenate([transform(p, to_last @ q.chains[k]) for k, p in q.clouds]),
-                            self.lc.query_voxel_m)
+                            self.lc.search.query_voxel_m)
         start = q.start_ns
         level = np.asarray(self.motion.level(np.eye(4), start, q.last_ns)[:3, :3])
         candidates = self._candidates(points, level, [floor])

@@ -141,6 +141,6 @@ def _scan_prep(src: LogSource, cfg: MfmapConfig, timeline: Timeline) -> tuple[Mo
     extrinsics = src.extrinsics()
     motion = MotionModel(MotionPrior.AUTO, src.odometry(), src.imu(), extrinsics)
     cabin = (CabinFilter(cfg.mapping, list(timeline.transitions), motion)
-             if cfg.mapping.cabin_filter else None)
+             if cfg.mapping.cabin.filter else None)
     wheels = Wheels(src.odometry())
     return motion, wheels, ScanPrep(cfg.localize, extrinsics, motion, cabin, wheels)

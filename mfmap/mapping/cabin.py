@@ -57,8 +57,8 @@ class CabinFilter:
 
     def __init__(self, cfg: MappingConfig, transitions: list[Transition], motion: _Relative) -> None:
         self.rides = [tr for tr in transitions if tr.kind == TransitionKind.ELEVATOR]
-        self.window_ns = int(cfg.cabin_window_s * 1e9)
-        self.half_xy_m = (cfg.cabin_size_m[0] / 2.0, cfg.cabin_size_m[1] / 2.0)
+        self.window_ns = int(cfg.cabin.window_s * 1e9)
+        self.half_xy_m = (cfg.cabin.size_m[0] / 2.0, cfg.cabin.size_m[1] / 2.0)
         self.motion = motion
         self._visit_start_pose: F64 | None = None
         self.dropped = 0
@@ -121,10 +121,10 @@ class CabinBox:
 def cabin_boxes(transitions: Sequence[Transition], stamps_ns: I64, poses: F64,
                 cfg: MappingConfig) -> list[CabinBox]:
     """Where the robot stood in each elevator, with the window in which its walls are seen."""
-    if not cfg.cabin_filter or stamps_ns.shape[0] == 0:
+    if not cfg.cabin.filter or stamps_ns.shape[0] == 0:
         return []
-    window = int(cfg.cabin_window_s * 1e9)
-    half = (cfg.cabin_size_m[0] / 2, cfg.cabin_size_m[1] / 2)
+    window = int(cfg.cabin.window_s * 1e9)
+    half = (cfg.cabin.size_m[0] / 2, cfg.cabin.size_m[1] / 2)
     out = []
     for tr in transitions:
         if tr.kind != TransitionKind.ELEVATOR:

@@ -137,7 +137,7 @@ class ChunkResult:
 
 def map_chunk(job: ChunkJob) -> ChunkResult:
     """Worker: map one chunk's scans from an identity held pose."""
-    motion = MotionModel(job.cfg.motion_prior, job.odom, job.imu, job.extrinsics)
+    motion = MotionModel(job.cfg.motion.prior, job.odom, job.imu, job.extrinsics)
     mapper = Mapper(job.cfg, job.seg, job.extrinsics, motion, job.planar)
     chunk = job.chunk
     if chunk.first_visit > 0:

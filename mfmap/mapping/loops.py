@@ -149,7 +149,7 @@ class LoopCloser:
         """Register a new keyframe; return the verified loop edges it closes."""
         desc = place_descriptor(kf.cloud)
         edges: list[PoseEdge] = []
-        if self.cfg.loop_closure:
+        if self.cfg.loops.closure:
             for other_id, guess in self._candidates(kf, desc):
                 self.stats.candidates += 1
                 verify = self.verify_2d if self.planar else self.verify
@@ -158,7 +158,7 @@ class LoopCloser:
                     # Repeating structure (pillars, doors) aliases by metres; drift does not.
                     odom_rel = inverse(self._keyframes[other_id].pose) @ kf.pose
                     moved = inverse(odom_rel) @ check.registration.transform
-                    if float(np.linalg.norm(moved[:3, 3])) > self.cfg.loop_max_correction_m:
+                    if float(np.linalg.norm(moved[:3, 3])) > self.cfg.loops.max_correction_m:
                         self.stats.rejected_implausible += 1
                         continue
                     self.stats.accepted += 1
@@ -179,8 +179,8 @@ class LoopCloser:
         center = self._keyframes[center_id]
         to_center = inverse(center.pose)
         parts = []
-        for k in range(center_id - self.cfg.loop_submap_keyframes,
-                       center_id + self.cfg.loop_submap_keyframes + 1):
+        for k in range(center_id - self.cfg.loops.submap_keyframes,
+                       center_id + self.cfg.loops.submap_keyframes + 1):
             other = self._keyframes.get(k)
             if other is None or other.visit != center.visit:
                 continue
@@ -201,7 +201,7 @@ class LoopCloser:
         same_floor = [
             other for other in self._keyframes.values()
             if other.floor_id == kf.floor_id  # never propose a loop between floors
-            and (other.visit != kf.visit or kf.id - other.id >= self.cfg.loop_min_separation)
+            and (other.visit != kf.visit or kf.id - other.id >= self.cfg.loops.min_separation)
             and (self.group_of is None or self.group_of(other) != self.group_of(kf))
         ]
         if not same_floor:
@@ -210,24 +210,24 @@ class LoopCloser:
         seen: set[int] = set()
         dists = [(float(np.linalg.norm(o.pose[:2, 3] - kf.pose[:2, 3])), o) for o in same_floor]
         dists.sort(key=lambda d: d[0])
-        for dist, other in dists[: self.cfg.loop_max_candidates]:
-            if dist > self.cfg.loop_radius_m:
+        for dist, other in dists[: self.cfg.loops.max_candidates]:
+            if dist > self.cfg.loops.radius_m:
                 break
             out.append((other.id, inverse(other.pose) @ kf.pose))
             seen.add(other.id)
         key = ring_key(desc)
         by_key = sorted(same_floor, key=lambda o: float(np.linalg.norm(self._keys[o.id] - key)))
-        for other in by_key[: 2 * self.cfg.loop_max_candidates]:
+        for other in by_key[: 2 * self.cfg.loops.max_candidates]:
             if other.id in seen:
                 continue
             dist, shift = descriptor_distance(self._desc[other.id], desc)
-            if dist > self.cfg.loop_descriptor_threshold:
+            if dist > self.cfg.loops.descriptor_threshold:
                 continue
             # kf's sector s matches the other's sector s + shift: kf is yawed by +shift sectors.
             yaw = shift * 2 * np.pi / SECTORS
             out.append((other.id, yaw_pose(yaw)))
             seen.add(other.id)
-        return out[: 2 * self.cfg.loop_max_candidates]
+        return out[: 2 * self.cfg.loops.max_candidates]
 
     def verify(self, target_points: F32 | F64, source_points: F32 | F64, guess: F64) -> LoopCheck:
         """Align source to target from guess; accept only a good, unambiguous, well-posed match."""
@@ -242,13 +242,13 @@ class LoopCloser:
             return icp(src_f, tgt_f, coarse.transform, 2 * fine_voxel, fine_voxel, 40)
 
         best = align(guess)
-        if self.cfg.icp_fine_kernel_m > 0:
+        if self.cfg.icp.fine_kernel_m > 0:
             # A kernel at the lidar's noise: loops 2-5 m apart went from 1.9-2.3 to 0.5 cm RMS.
-            best = icp(src_f, tgt_f, best.transform, 2 * fine_voxel, self.cfg.icp_fine_kernel_m, 40)
+            best = icp(src_f, tgt_f, best.transform, 2 * fine_voxel, self.cfg.icp.fine_kernel_m, 40)
         check_distance = 0.25
         fitness, rmse = plane_fit(src_f, tgt_f, best.transform, check_distance)
         result = Registration(best.transform, fitness, rmse)
-        if fitness < self.cfg.loop_min_fitness or rmse > self.cfg.loop_max_rmse_m:
+        if fitness < self.cfg.loops.min_fitness or rmse > self.cfg.loops.max_rmse_m:
             return LoopCheck(False, "fitness", result)
         # Unambiguous: starts perturbed by half a metre and 10 degrees must land on the same answer.
         for _ in range(3):
@@ -256,11 +256,11 @@ class LoopCloser:
                               np.r_[self._rng.uniform(-0.5, 0.5, 2), 0.0])
             other = align(best.transform @ offset)
             moved = float(np.linalg.norm(other.transform[:3, 3] - best.transform[:3, 3]))
-            if moved > self.cfg.loop_ambiguity_m:
+            if moved > self.cfg.loops.ambiguity_m:
                 return LoopCheck(False, "ambiguous", result)
         info = information(to_o3d(src_f), tgt_f.cloud, check_distance, best.transform)
         eig = np.linalg.eigvalsh(info[3:, 3:])
-        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
+        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loops.min_information_ratio:
             return LoopCheck(False, "degenerate", result)
         return LoopCheck(True, "ok", result)
 
@@ -283,32 +283,32 @@ class LoopCloser:
         def align(x: float, y: float, yaw: float) -> tuple[float, float, float]:
             x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 10 * coarse_m, 40)
             x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 4 * fine_m, 40)
-            if self.cfg.icp_fine_kernel_m > 0:
+            if self.cfg.icp.fine_kernel_m > 0:
                 x, y, yaw, _, _ = icp_2d(source, target, x, y, yaw, 4 * fine_m, 40,
-                                         self.cfg.icp_fine_kernel_m)
+                                         self.cfg.icp.fine_kernel_m)
             return x, y, yaw
 
         x, y, yaw = align(float(guess[0, 3]), float(guess[1, 3]), yaw0)
         check_distance = 0.25
         fitness, rmse, info = line_fit(source, target, x, y, yaw, check_distance)
         result = Registration(yaw_pose(yaw, np.array([x, y, 0.0])), fitness, rmse)
-        if fitness < self.cfg.loop_min_fitness or rmse > self.cfg.loop_max_rmse_m:
+        if fitness < self.cfg.loops.min_fitness or rmse > self.cfg.loops.max_rmse_m:
             return LoopCheck(False, "fitness", result)
         for _ in range(3):
             dyaw = float(self._rng.uniform(-0.17, 0.17))
             dx, dy = self._rng.uniform(-0.5, 0.5, 2)
             ox, oy, _ = align(x + float(dx), y + float(dy), yaw + dyaw)
-            if float(np.hypot(ox - x, oy - y)) > self.cfg.loop_ambiguity_m:
+            if float(np.hypot(ox - x, oy - y)) > self.cfg.loops.ambiguity_m:
                 return LoopCheck(False, "ambiguous", result)
         eig = np.linalg.eigvalsh(info[:2, :2])
-        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loop_min_information_ratio:
+        if eig[0] <= 0 or eig[0] / eig[-1] < self.cfg.loops.min_information_ratio:
             return LoopCheck(False, "degenerate", result)
         return LoopCheck(True, "ok", result)
 
     def _edge(self, i: int, j: int, result: Registration) -> PoseEdge:
         # Far apart, the two clouds overlap less and ICP settles off by more (see the config).
-        grow = 1.0 + self.cfg.loop_sigma_growth_per_m * float(np.linalg.norm(result.transform[:3, 3]))
-        sig_r = np.radians(self.cfg.loop_sigma_deg) * grow
-        sig_t = self.cfg.loop_sigma_m * grow
+        grow = 1.0 + self.cfg.loops.sigma_growth_per_m * float(np.linalg.norm(result.transform[:3, 3]))
+        sig_r = np.radians(self.cfg.loops.sigma_deg) * grow
+        sig_t = self.cfg.loops.sigma_m * grow
         info = np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
         return PoseEdge(i, j, result.transform, info, EdgeKind.LOOP, result.fitness)

@@ -54,7 +54,7 @@ class Mapper:
             self.matcher = Scan2DMatcher.from_config(cfg, threshold)
         else:
             self.matcher = ScanMatcher.from_config(cfg, LocalMap.from_config(cfg), threshold)
-        self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin_filter else None
+        self.cabin = CabinFilter(cfg, self.timeline.transitions, motion) if cfg.cabin.filter else None
         self.transitions = Transitions(seg, self.timeline)
         self.loops = LoopCloser(cfg, planar=planar)
         self.state = TrackState()
@@ -64,8 +64,8 @@ class Mapper:
         self.step = ScanStep(cfg, extrinsics, motion, planar, self.matcher, self.cabin,
                              self.counts, self.warnings)
         # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
-        self.wheels = RunScale(cfg.odom_scale_min_m)
-        if motion.source != "odometry" and cfg.cabin_filter and any(
+        self.wheels = RunScale(cfg.motion.odom_scale_min_m)
+        if motion.source != "odometry" and cfg.cabin.filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
         ):
             self.warnings.append(
@@ -130,8 +130,8 @@ class Mapper:
             return True
         rel = inverse(last) @ pose
         return bool(
-            np.linalg.norm(rel[:3, 3]) >= self.cfg.keyframe_distance_m
-            or np.degrees(rotation_angle_rad(rel)) >= self.cfg.keyframe_angle_deg
+            np.linalg.norm(rel[:3, 3]) >= self.cfg.keyframes.distance_m
+            or np.degrees(rotation_angle_rad(rel)) >= self.cfg.keyframes.angle_deg
         )
 
     def _keyframe(self, stamp_ns: int, points: F64, pose: F64, fitness: float, rmse_m: float,
@@ -149,7 +149,7 @@ class Mapper:
             floor_id=self.timeline.visits[state.visit][0],
             visit=state.visit,
             pose=pose.copy(),
-            cloud=downsample(points, self.cfg.keyframe_voxel_size_m).astype(np.float32),
+            cloud=downsample(points, self.cfg.keyframes.voxel_size_m).astype(np.float32),
             fitness=fitness,
             rmse_m=rmse_m,
         )
@@ -166,7 +166,7 @@ class Mapper:
         measured = inverse(previous.pose) @ kf.pose
         information = odometry_information(self.cfg, measured)
         if previous.visit != kf.visit:  # across a stair walk
-            information[5, 5] = min(information[5, 5], self.cfg.stairs_sigma_z_m**-2)
+            information[5, 5] = min(information[5, 5], self.cfg.stairs.sigma_z_m**-2)
             measured = walk_heading(self.cfg, self.motion.gyro, previous, kf, measured,
                                     self.book.scan_poses)
         self.book.edges.append(PoseEdge(previous.id, kf.id, measured, information, EdgeKind.ODOMETRY,
@@ -199,9 +199,9 @@ class Mapper:
             # gravity (the climb leaves tenths of a degree of tilt, and a tilted new map makes
             # the flat floor climb: on `long` this halves the visit's drift before loops).
             self.matcher.map.clear()
-            if not self.planar and self.cfg.level_window_s > 0:
+            if not self.planar and self.cfg.stairs.level_window_s > 0:
                 state.pose = self.motion.level(state.pose, stamp_ns,
-                                               stamp_ns + int(self.cfg.level_window_s * 1e9))
+                                               stamp_ns + int(self.cfg.stairs.level_window_s * 1e9))
         # else: a gap: the odometry and its local map simply continue.
 
     def _after_ride(self, segment: Segment, stamp_ns: int, ride_start_ns: int,

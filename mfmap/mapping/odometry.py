@@ -38,8 +38,8 @@ class AdaptiveThreshold:
 
     @classmethod
     def from_config(cls, cfg: MappingConfig) -> AdaptiveThreshold:
-        return cls(cfg.icp_initial_threshold_m, cfg.icp_min_motion_m, cfg.max_range_m,
-                   cfg.icp_min_threshold_m)
+        return cls(cfg.icp.initial_threshold_m, cfg.icp.min_motion_m, cfg.max_range_m,
+                   cfg.icp.min_threshold_m)
 
     def update(self, correction: F64) -> None:
         theta = rotation_angle_rad(correction)
@@ -68,7 +68,7 @@ class LocalMap:
 
     @classmethod
     def from_config(cls, cfg: MappingConfig) -> LocalMap:
-        return cls(cfg.map_voxel_size_m, cfg.local_map_keyframes, cfg.local_map_radius_m)
+        return cls(cfg.local_map.voxel_size_m, cfg.local_map.keyframes, cfg.local_map.radius_m)
 
     def clear(self) -> None:
         self._frames.clear()
@@ -121,12 +121,12 @@ class ScanMatcher:
     @classmethod
     def from_config(cls, cfg: MappingConfig, local_map: LocalMap,
                     threshold: AdaptiveThreshold) -> ScanMatcher:
-        return cls(cfg.voxel_size_m, local_map, threshold, cfg.icp_max_iterations,
-                   tolerance=cfg.icp_tolerance,
-                   max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
-                   low_fitness=cfg.icp_gyro_low_fitness,
-                   heading_sigma_deg=cfg.icp_heading_sigma_deg,
-                   fine_kernel_m=cfg.icp_fine_kernel_m)
+        return cls(cfg.voxel_size_m, local_map, threshold, cfg.icp.max_iterations,
+                   tolerance=cfg.icp.tolerance,
+                   max_gyro_disagreement_deg=cfg.icp.max_gyro_disagreement_deg,
+                   low_fitness=cfg.icp.gyro_low_fitness,
+                   heading_sigma_deg=cfg.icp.heading_sigma_deg,
+                   fine_kernel_m=cfg.icp.fine_kernel_m)
 
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False,
               gyro_var_rad2: float = 0.0) -> ScanMatch:

@@ -13,8 +13,8 @@ from mfmap.types import F64, Keyframe, PoseEdge, ScanPose
 def odometry_information(cfg: MappingConfig, delta: F64) -> F64:
     """The information matrix of an odometry edge over `delta` (rotation first)."""
     dist = float(np.linalg.norm(delta[:3, 3]))
-    sig_t = cfg.odom_sigma_m + cfg.odom_sigma_per_m * dist
-    sig_r = np.radians(cfg.odom_sigma_deg)
+    sig_t = cfg.odom_edge.sigma_m + cfg.odom_edge.sigma_per_m * dist
+    sig_r = np.radians(cfg.odom_edge.sigma_deg)
     return np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
 
 

@@ -138,10 +138,10 @@ class Scan2DMatcher:
 
     @classmethod
     def from_config(cls, cfg: MappingConfig, threshold: AdaptiveThreshold) -> Scan2DMatcher:
-        return cls(cfg.voxel_size_m, cfg.map_voxel_size_m, cfg.local_map_keyframes, threshold,
-                   cfg.icp_max_iterations, fine_kernel_m=cfg.icp_fine_kernel_m,
-                   max_gyro_disagreement_deg=cfg.icp_max_gyro_disagreement_deg,
-                   low_fitness=cfg.icp_gyro_low_fitness)
+        return cls(cfg.voxel_size_m, cfg.local_map.voxel_size_m, cfg.local_map.keyframes, threshold,
+                   cfg.icp.max_iterations, fine_kernel_m=cfg.icp.fine_kernel_m,
+                   max_gyro_disagreement_deg=cfg.icp.max_gyro_disagreement_deg,
+                   low_fitness=cfg.icp.gyro_low_fitness)
 
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False) -> ScanMatch:
         """Register against the local 2D map from `predicted`.

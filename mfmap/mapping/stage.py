@@ -58,7 +58,7 @@ def map_floors(
             result = map_parallel(source, seg, cfg, extrinsics, planar, chunks, reopen, bar, pool)
         else:
             mapper = Mapper(cfg, seg, extrinsics, MotionModel(
-                cfg.motion_prior, source.odometry(), source.imu(), extrinsics), planar)
+                cfg.motion.prior, source.odometry(), source.imu(), extrinsics), planar)
             for stamp_ns, frame_id, xyz, t_offset_ns in read_scans(source, planar):
                 mapper.add_scan(stamp_ns, frame_id, xyz, t_offset_ns)
                 bar.advance()

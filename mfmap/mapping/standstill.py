@@ -51,11 +51,11 @@ class StandStill:
         stand-still: its x, y is kept. A registration that turned more takes the median of
         those instead, so one poorly deskewed scan as the turn starts does not set the spot.
         """
-        if self.registered is None or self.cfg.turn_hold_m <= 0:
+        if self.registered is None or self.cfg.motion.turn_hold_m <= 0:
             return None
         since_ns, since_pose = self.registered
         moved = self._wheel_distance(self._still[0][0] if self._still else since_ns, stamp_ns)
-        turn = None if moved is None or moved >= self.cfg.turn_hold_m else self._gyro_turn(
+        turn = None if moved is None or moved >= self.cfg.motion.turn_hold_m else self._gyro_turn(
             since_ns, stamp_ns)
         if turn is None:
             self._still.clear()
@@ -74,10 +74,10 @@ class StandStill:
         Without wheel odometry (or a gyro) nothing independent of the lidar says so, and every
         scan is registered. False until a scan has been registered.
         """
-        if self.registered is None or self.cfg.standstill_hold_s <= 0:
+        if self.registered is None or self.cfg.motion.standstill_hold_s <= 0:
             return False
         since_ns, _ = self.registered
-        if stamp_ns - since_ns > self.cfg.standstill_hold_s * 1e9:
+        if stamp_ns - since_ns > self.cfg.motion.standstill_hold_s * 1e9:
             return False
         moved = self._wheel_distance(since_ns, stamp_ns)
         turn = self._gyro_turn(since_ns, stamp_ns)

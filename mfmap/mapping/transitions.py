@@ -60,11 +60,11 @@ def walk_heading(cfg: MappingConfig, gyro: GyroIntegrator | None, before: Keyfra
     0.00-0.70 deg off from the registrations and 0.04-0.17 deg from the gyro (its bias,
     measured at the stand-stills, wanders over the walk's 20 s).
     """
-    sigma_gyro = math.radians(cfg.stairs_gyro_sigma_yaw_deg)
+    sigma_gyro = math.radians(cfg.stairs.gyro_sigma_yaw_deg)
     if (gyro is None or sigma_gyro <= 0 or not gyro.covers(before.stamp_ns)
             or not gyro.covers(after.stamp_ns)):
         return measured
-    sigma_reg = math.radians(cfg.stairs_sigma_yaw_deg)
+    sigma_reg = math.radians(cfg.stairs.sigma_yaw_deg)
 
     def gyro_heading(stamp_ns: int) -> float:  # world yaw, turned by the gyro from `before`
         return yaw_rad(before.pose[:3, :3] @ gyro.delta(before.stamp_ns, stamp_ns))

@@ -247,8 +247,8 @@ def test_interrupted_build_leaves_nothing_complete(tiny: Path, tmp_path: Path, m
         raise KeyboardInterrupt
 
     cfg = MfmapConfig()
-    cfg.export.cloud_source = CloudSource.KEYFRAMES
-    cfg.graph.inter_floor_registration = False
+    cfg.export.cloud.source = CloudSource.KEYFRAMES
+    cfg.graph.ablation.inter_floor_registration = False
     monkeypatch.setattr(write_module, "write_outputs", write_then_interrupt)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
@@ -261,7 +261,7 @@ def test_no_barometer_builds_one_floor_with_a_warning(tiny: Path, tmp_path: Path
     log = tmp_path / "nobaro.mcap"
     copy_log(tiny / "log.mcap", log, {"/baro/pressure"}, end_s=25.0)
     cfg = MfmapConfig()
-    cfg.export.cloud_source = CloudSource.KEYFRAMES
+    cfg.export.cloud.source = CloudSource.KEYFRAMES
     result = pipeline.build(log, tmp_path / "out", cfg)
     assert any("no barometer" in w for w in result.warnings)
     assert "+0.000" in _render(result)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from mfmap.export.camera import pose_at
-from mfmap.export.config import ExportConfig
+from mfmap.export.config import CloudConfig, ExportConfig
 from mfmap.export.files import ply_bytes, read_ply, write_ply
 from mfmap.export.mapdata import MapAccumulator
 from mfmap.export.write import Trajectory
@@ -40,7 +40,7 @@ def test_pose_at_interpolates_between_scans_of_one_floor() -> None:
 
 
 def test_camera_points_colour_the_cloud_and_mark_obstacles() -> None:
-    cfg = ExportConfig(cloud_voxel_m=0.05, cloud_min_range_m=0.0)
+    cfg = ExportConfig(cloud=CloudConfig(voxel_m=0.05, min_range_m=0.0))
     maps = MapAccumulator(cfg, {0: 0.0})
     pose = np.eye(4)
     # A lidar scan: a wall at x = 3 (at z 0.3), and one point 2 m away from anything coloured.
@@ -84,7 +84,7 @@ def test_ply_colours_only_when_given(tmp_path: Path) -> None:
 
 
 def test_a_cloud_without_camera_keeps_its_layout() -> None:
-    cfg = ExportConfig(cloud_voxel_m=0.05, cloud_min_range_m=0.0)
+    cfg = ExportConfig(cloud=CloudConfig(voxel_m=0.05, min_range_m=0.0))
     maps = MapAccumulator(cfg, {0: 0.0})
     maps.add(0, np.eye(4), np.array([[1.0, 0.0, 0.3], [1.01, 0.0, 0.3], [2.0, 0.0, 0.3]]))
     assert maps.colours(0) is None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from mfmap.export.config import ExportConfig
+from mfmap.export.config import ExportConfig, GridConfig
 from mfmap.export.files import read_ply, rotation_to_quat_xyzw, tum_text, write_ply
 from mfmap.export.floorsjson import floors_json
 from mfmap.export.grid import FREE, OCCUPIED, UNKNOWN, precision_recall, rasterise
@@ -34,7 +34,7 @@ def _wall_points(walls: np.ndarray, step_m: float = 0.01) -> np.ndarray:
 
 def test_grid_matches_the_walls(building: SyntheticBuilding, tmp_path: Path) -> None:
     b = building
-    maps = MapAccumulator(ExportConfig(grid_min_hits=1), {0: 0.0, 1: 4.0})
+    maps = MapAccumulator(ExportConfig(grid=GridConfig(min_hits=1)), {0: 0.0, 1: 4.0})
     for kf in b.keyframes:
         maps.add(kf.floor_id, b.gt_poses[kf.id], kf.cloud, force_view=True)
     for floor in (0, 1):
@@ -56,7 +56,7 @@ def test_grid_matches_the_walls(building: SyntheticBuilding, tmp_path: Path) -> 
 
 def test_grid_yaml_and_pgm_load_as_nav2_expects(building: SyntheticBuilding, tmp_path: Path) -> None:
     b = building
-    maps = MapAccumulator(ExportConfig(grid_resolution_m=0.1, grid_min_hits=1), {0: 0.0})
+    maps = MapAccumulator(ExportConfig(grid=GridConfig(resolution_m=0.1, min_hits=1)), {0: 0.0})
     for kf in b.keyframes:
         if kf.floor_id == 0:
             maps.add(0, b.gt_poses[kf.id], kf.cloud, force_view=True)
@@ -142,7 +142,7 @@ def test_a_tilted_pose_does_not_lift_the_floor_into_the_band() -> None:
     c, s = math.cos(pitch), math.sin(pitch)
     pose = np.array([[c, 0.0, s, 0.0], [0.0, 1.0, 0.0, 0.0], [-s, 0.0, c, 0.0], [0.0, 0.0, 0.0, 1.0]])
     for level, expected in ((True, 0), (False, 1)):
-        maps = MapAccumulator(ExportConfig(grid_min_hits=1, grid_level_band=level), {0: 0.0})
+        maps = MapAccumulator(ExportConfig(grid=GridConfig(min_hits=1, level_band=level)), {0: 0.0})
         maps.add(0, pose, floor, force_view=True)
         occupied = int(maps.grid(0).occupied.sum())
         assert (occupied > 50) == bool(expected), (level, occupied)

@@ -7,7 +7,7 @@ import numpy.typing as npt
 import pytest
 
 from mfmap.errors import MissingDataError
-from mfmap.floors.config import FloorsConfig
+from mfmap.floors.config import FilterConfig, FloorsConfig
 from mfmap.floors.motion import MotionEvidence
 from mfmap.floors.segment import _cluster_visits, segment_pressure
 from mfmap.sim.traces import Leg, SyntheticTrace, building_walk, synthetic_trace
@@ -200,7 +200,7 @@ def test_too_few_samples_is_a_typed_error(cfg: FloorsConfig) -> None:
 
 def test_baseline_sliding_mean_runs_the_same_pipeline() -> None:
     trace = synthetic_trace(building_walk(4.0, "elevator"), seed=0)
-    seg = segment_pressure(trace.pressure, None, FloorsConfig(method="sliding_mean"))
+    seg = segment_pressure(trace.pressure, None, FloorsConfig(filter=FilterConfig(method="sliding_mean")))
     # On a clean elevator walk the baseline finds the floors too (it fails on stairs: see
     # pipelines/compare_floors.py); its transition times are only the smoothed speed's.
     assert len(seg.floors) == 4 and len(seg.transitions) == 6

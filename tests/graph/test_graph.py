@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from mfmap.graph.barometer import pressure_to_height_m
-from mfmap.graph.config import GraphConfig
+from mfmap.graph.config import AblationConfig, GraphConfig
 from mfmap.graph.interfloor import register_floors
 from mfmap.graph.optimize import GraphResult, optimize_building
 from tests.graph.synthetic import SyntheticBuilding, make_building, pose_xyyaw
@@ -114,7 +114,7 @@ def test_inter_floor_registration_is_what_fixes_yaw() -> None:
     runs = {
         on: optimize_building(
             b.keyframes, b.edges, b.segmentation, b.pressure,
-            GraphConfig(inter_floor_registration=on), temperature_k=295.0,
+            GraphConfig(ablation=AblationConfig(inter_floor_registration=on)), temperature_k=295.0,
         )
         for on in (False, True)
     }
@@ -129,7 +129,7 @@ def test_without_barometer_z_comes_from_the_transitions(building: SyntheticBuild
     b = building
     res = optimize_building(
         b.keyframes, b.edges, b.segmentation, b.pressure,
-        GraphConfig(barometer_factors=False), temperature_k=295.0,
+        GraphConfig(ablation=AblationConfig(barometer_factors=False)), temperature_k=295.0,
     )
     assert "barometer" not in res.stats
     assert res.floor_z_m[1] - res.floor_z_m[0] == pytest.approx(FLOOR_HEIGHT_M, abs=0.1)

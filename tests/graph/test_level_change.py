@@ -19,7 +19,7 @@ def _simulated(scenario: str, seed: int, window_s: float = 120.0) -> tuple[Floor
     transition, or its robust lines for 0); with the true height change of every transition and
     the true elevations."""
     sim = sim_barometer(scenario, seed)
-    cfg = MfmapConfig().floors.model_copy(update={"transition_window_s": window_s})
+    cfg = MfmapConfig().floors.model_copy(update={"transitions": MfmapConfig().floors.transitions.model_copy(update={"window_s": window_s})})
     seg = segment_pressure(sim.pressure, None, cfg)
     elevation = {f["id"]: f["elevation_m"] for f in sim.gt_floors["floors"]}
     truth = [elevation[t["to"]] - elevation[t["from"]] for t in sim.gt_floors["transitions"]]

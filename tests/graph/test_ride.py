@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mfmap.config import MfmapConfig
-from mfmap.graph.config import GraphConfig
+from mfmap.graph.config import AblationConfig, GraphConfig
 from mfmap.graph.optimize import optimize_building
 from mfmap.graph.ride import ride_height
 from mfmap.ingest import open_log
@@ -113,7 +113,7 @@ def test_the_imu_sets_a_rides_height_and_the_barometer_is_weighed_in() -> None:
         res = optimize_building(b.keyframes, b.edges, seg, pressure, config, temperature_k=295.0, imu=imu_series)
         return res.floor_z_m[1] - res.floor_z_m[0] - floor_height_m, res
 
-    err_off, off = z_error(GraphConfig(imu_ride_height=False), imu)
+    err_off, off = z_error(GraphConfig(ablation=AblationConfig(imu_ride_height=False)), imu)
     err_on, on = z_error(GraphConfig(), imu)
     err_none, none = z_error(GraphConfig(), None)
     assert err_off < -0.05  # the barometer's error
@@ -152,7 +152,7 @@ def test_a_transition_height_moves_the_floor_not_the_keyframes_at_the_ride() -> 
     off); on the two keyframes at the ride, as before, the floors' 2 cm ties let it bend them
     instead (2.7 cm off)."""
     b = make_building((0, 1), seed=4, floor_height_m=4.0, baro_noise_pa=0.5)
-    config = GraphConfig(imu_ride_height=False, barometer_factors=False)
+    config = GraphConfig(ablation=AblationConfig(imu_ride_height=False, barometer_factors=False))
     res = optimize_building(b.keyframes, b.edges, b.segmentation, b.pressure, config, temperature_k=295.0)
     ride = res.to_json()["rides"][0]
     assert abs(res.floor_z_m[1] - res.floor_z_m[0] - ride["baro_height_change_m"]) < 0.005

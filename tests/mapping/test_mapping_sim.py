@@ -115,7 +115,7 @@ def test_tiny_drift_and_rmse_against_ground_truth(tiny: Path, tiny_result: Mappi
 def test_without_cabin_filtering_the_elevator_visit_is_worse(
     tiny: Path, tiny_result: MappingResult, gt_floors: SegFn
 ) -> None:
-    unfiltered = _run(tiny, gt_floors, cabin_filter=False)
+    unfiltered = _run(tiny, gt_floors, cabin={"filter": False})
     with_filter = _errors(tiny, gt_floors, tiny_result, closed=False)
     without = _errors(tiny, gt_floors, unfiltered, closed=False)
     # Visit 1 starts inside the cabin after the ride: its walls and mirror images mislead ICP.
@@ -130,7 +130,7 @@ def test_no_loop_between_floors_of_three_floor_revisit(sim_run: Callable[..., Pa
     folder = sim_run("three-floor-revisit")
     # Every 4th scan registered and a keyframe per 2 m keep this 6-minute log fast; the loop
     # search still runs on every keyframe.
-    result = _run(folder, gt_floors, scan_stride=4, keyframe_distance_m=2.0)
+    result = _run(folder, gt_floors, scan_stride=4, keyframes={"distance_m": 2.0})
     floor_of = {kf.id: kf.floor_id for kf in result.keyframes}
     visit_of = {kf.id: kf.visit for kf in result.keyframes}
     loops = [e for e in result.edges if e.kind == "loop"]
@@ -163,7 +163,7 @@ def test_standstill_hold_replaces_registrations_one_for_one(
     tiny: Path, tiny_result: MappingResult, gt_floors: SegFn
 ) -> None:
     off = tiny_result  # the default: no hold
-    on = _run(tiny, gt_floors, standstill_hold_s=2.0)
+    on = _run(tiny, gt_floors, motion={"standstill_hold_s": 2.0})
     held = on.stats["held_scans"]
     assert off.stats["held_scans"] == 0
     # Held are registrations (every third scan) in the true stand-stills outside the cabin, up
@@ -203,7 +203,7 @@ def test_turning_in_place_keeps_the_spot(tiny: Path, tiny_result: MappingResult,
         return float(1e3 * np.abs(during - before).max())
 
     held = tiny_result.stats["turn_held"]
-    off = _run(tiny, gt_floors, turn_hold_m=0.0)
+    off = _run(tiny, gt_floors, motion={"turn_hold_m": 0.0})
     assert off.stats["turn_held"] == 0
     # Held are the registrations (every third scan) while the robot truly turns on the spot
     # outside the cabin: 41 against 40 scans' worth by the truth here.
@@ -316,7 +316,7 @@ def test_wheel_scale_is_calibrated_against_the_lidar(sim_run: Callable[..., Path
     result = _run(folder, gt_floors)
     assert abs(result.stats["wheel_odometry_scale"] - true_scale) < 0.002
     calibrated = _errors(folder, gt_floors, result, closed=True)
-    uncalibrated = _errors(folder, gt_floors, _run(folder, gt_floors, odom_scale_min_m=0.0),
+    uncalibrated = _errors(folder, gt_floors, _run(folder, gt_floors, motion={"odom_scale_min_m": 0.0}),
                            closed=True)
     # Measured: 0.8 / 1.2 cm calibrated, 3.4 / 7.9 cm not (visit 1 starts in the cabin).
     assert [e.rmse_m < 0.02 for e in calibrated] == [True, True], calibrated
@@ -350,7 +350,7 @@ def test_stairs_heading_across_the_walks_follows_the_gyro(stairs: Path, stairs_r
     robot tips onto the first step and turn the walk's ends against each other."""
     seg = gt_floors(stairs)
     with_gyro = _walk_end_turns(stairs_result, seg, stairs)
-    registrations = _walk_end_turns(_run(stairs, gt_floors, stairs_gyro_sigma_yaw_deg=0.0),
+    registrations = _walk_end_turns(_run(stairs, gt_floors, stairs={"gyro_sigma_yaw_deg": 0.0}),
                                     seg, stairs)
     assert len(with_gyro) == 2
     assert max(abs(e) for e in with_gyro) < 0.12, with_gyro  # 0.09 / 0.10 deg

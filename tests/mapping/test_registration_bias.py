@@ -55,11 +55,11 @@ def _along_track_errors(folder: Path, seg: FloorSegmentation, visit: int, fine_k
     cfg = MappingConfig()
     _, start_ns, end_ns = seg.visits()[visit]
     truth = _truth(folder)
-    local_map = LocalMap(cfg.map_voxel_size_m, cfg.local_map_keyframes, cfg.local_map_radius_m)
+    local_map = LocalMap(cfg.local_map.voxel_size_m, cfg.local_map.keyframes, cfg.local_map.radius_m)
     matcher = ScanMatcher(cfg.voxel_size_m, local_map,
-                          AdaptiveThreshold(cfg.icp_initial_threshold_m, 0.0, cfg.max_range_m,
-                                            cfg.icp_min_threshold_m),
-                          cfg.icp_max_iterations, tolerance=cfg.icp_tolerance,
+                          AdaptiveThreshold(cfg.icp.initial_threshold_m, 0.0, cfg.max_range_m,
+                                            cfg.icp.min_threshold_m),
+                          cfg.icp.max_iterations, tolerance=cfg.icp.tolerance,
                           fine_kernel_m=fine_kernel_m)
     errors: list[tuple[float, float]] = []
     last_keyframe: np.ndarray | None = None
@@ -79,7 +79,7 @@ def _along_track_errors(folder: Path, seg: FloorSegmentation, visit: int, fine_k
                 errors.append((float(shift @ ahead), float(shift @ left)))
                 if len(errors) == count:
                     break
-            if last_keyframe is None or np.linalg.norm(pose[:3, 3] - last_keyframe) >= cfg.keyframe_distance_m:
+            if last_keyframe is None or np.linalg.norm(pose[:3, 3] - last_keyframe) >= cfg.keyframes.distance_m:
                 matcher.add_keyframe(points, pose)
                 last_keyframe = pose[:3, 3]
     assert len(errors) == count
@@ -92,7 +92,7 @@ def test_the_fine_kernel_takes_the_pull_out_of_registration(sim_run: Callable[..
     folder = sim_run("three-floor-revisit")
     seg = gt_floors(folder)
     wide = _along_track_errors(folder, seg, 0, 0.0, 150)
-    fine = _along_track_errors(folder, seg, 0, MappingConfig().icp_fine_kernel_m, 150)
+    fine = _along_track_errors(folder, seg, 0, MappingConfig().icp.fine_kernel_m, 150)
     # Measured: wide -1.20 mm along (sd 3.18 mm), fine -0.36 mm (sd 1.94 mm); RMS over along
     # and lateral 3.11 and 2.09 mm.
     assert wide[:, 0].mean() < -0.0009
@@ -117,7 +117,7 @@ def test_loops_far_apart_are_verified_to_the_lidars_noise(sim_run: Callable[...,
         for index, cloud in enumerate(src.clouds(start_ns, end_ns)):
             if index % 10 == 0:  # one a second
                 points, pose, _ = _scan(cloud, sensor_to_base, truth, cfg)
-                clouds.append((downsample(points, cfg.keyframe_voxel_size_m), pose))
+                clouds.append((downsample(points, cfg.keyframes.voxel_size_m), pose))
     def submap(a: int) -> np.ndarray:  # the keyframe and two neighbours each side, in its frame
         return np.concatenate([transform(clouds[k][0], inverse(clouds[a][1]) @ clouds[k][1])
                                for k in range(a - 2, a + 3)])
@@ -126,8 +126,8 @@ def test_loops_far_apart_are_verified_to_the_lidars_noise(sim_run: Callable[...,
              if 2.5 < np.linalg.norm(clouds[a][1][:2, 3] - clouds[b][1][:2, 3]) < 4.0][::4][:20]
     assert len(pairs) == 20
     errors = {}
-    for kernel in (0.0, cfg.icp_fine_kernel_m):
-        closer = LoopCloser(cfg.model_copy(update={"icp_fine_kernel_m": kernel}))
+    for kernel in (0.0, cfg.icp.fine_kernel_m):
+        closer = LoopCloser(cfg.model_copy(update={"icp": cfg.icp.model_copy(update={"fine_kernel_m": kernel})}))
         off = []
         for a, b in pairs:
             true_rel = inverse(clouds[a][1]) @ clouds[b][1]
@@ -140,4 +140,4 @@ def test_loops_far_apart_are_verified_to_the_lidars_noise(sim_run: Callable[...,
     # mapping stage, whose submaps are posed by the odometry, loops 2-5 m apart went from
     # 1.9-2.3 cm to 0.5 cm RMS.)
     assert errors[0.0] > 0.0035
-    assert errors[cfg.icp_fine_kernel_m] < 0.6 * errors[0.0]
+    assert errors[cfg.icp.fine_kernel_m] < 0.6 * errors[0.0]

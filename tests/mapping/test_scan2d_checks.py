@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from mfmap.mapping.config import MappingConfig
+from mfmap.mapping.config import LoopsConfig, MappingConfig
 from mfmap.mapping.geometry import yaw_pose, yaw_rad
 from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.odometry import AdaptiveThreshold
@@ -119,7 +119,7 @@ def test_2d_loop_degeneracy_gate_alone() -> None:
     a = yaw_pose(0.0, np.array([0.0, 0.0, 0.0]))
     b = yaw_pose(0.0, np.array([2.0, 0.0, 0.0]))
     target, source = _keyframe_clouds(CORRIDOR, a, b, 2)
-    loops = LoopCloser(MappingConfig(loop_ambiguity_m=100.0), planar=True)
+    loops = LoopCloser(MappingConfig(loops=LoopsConfig(ambiguity_m=100.0)), planar=True)
     check = loops.verify_2d(target, source, np.linalg.inv(a) @ b)
     assert not check.accepted and check.reason == "degenerate"
     assert check.registration is not None and check.registration.fitness > 0.8

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mfmap.mapping.cabin import through_box
-from mfmap.mapping.config import MappingConfig
+from mfmap.mapping.config import LoopsConfig, MappingConfig
 from mfmap.mapping.geometry import deskew, rotations_to, yaw_pose
 from mfmap.mapping.loops import LoopCloser, descriptor_distance, place_descriptor
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
@@ -212,7 +212,7 @@ def test_wheel_scale_is_the_least_squares_ratio_and_waits_for_travel() -> None:
 
 
 def test_loop_sigmas_grow_with_the_distance_between_its_keyframes() -> None:
-    cfg = MappingConfig(loop_sigma_m=0.01, loop_sigma_deg=0.3, loop_sigma_growth_per_m=1.0)
+    cfg = MappingConfig(loops=LoopsConfig(sigma_m=0.01, sigma_deg=0.3, sigma_growth_per_m=1.0))
     loops = LoopCloser(cfg)
     near = loops._edge(0, 20, Registration(np.eye(4), 0.9, 0.01))
     far = loops._edge(0, 20, Registration(yaw_pose(0.1, np.array([3.0, 0.0, 0.0])), 0.6, 0.03))
@@ -220,9 +220,9 @@ def test_loop_sigmas_grow_with_the_distance_between_its_keyframes() -> None:
     assert near.information[2, 2] == pytest.approx(np.radians(0.3) ** -2)
     # 3 m apart: every sigma four times as large.
     assert np.allclose(np.diag(far.information), np.diag(near.information) / 16.0)
-    flat = LoopCloser(MappingConfig(loop_sigma_growth_per_m=0.0))
+    flat = LoopCloser(MappingConfig(loops=LoopsConfig(sigma_growth_per_m=0.0)))
     assert flat._edge(0, 20, Registration(yaw_pose(0.1, np.array([3.0, 0.0, 0.0])), 0.6, 0.03)
-                      ).information[3, 3] == pytest.approx(cfg.loop_sigma_m**-2)
+                      ).information[3, 3] == pytest.approx(cfg.loops.sigma_m**-2)
 
 
 def test_a_low_overlap_heading_is_blended_with_the_gyro_by_their_variances() -> None:

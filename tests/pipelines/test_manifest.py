@@ -166,7 +166,7 @@ def test_directions_follow_eval_names(write_manifest: Callable[..., Path]) -> No
 
 
 def test_config_layers_and_bad_config_key(write_manifest: Callable[..., Path], tmp_path: Path) -> None:
-    (tmp_path / "c.yaml").write_text("graph:\n  barometer_factors: false\n")
+    (tmp_path / "c.yaml").write_text("graph:\n  ablation:\n    barometer_factors: false\n")
     path = write_manifest(
         _minimal(
             config="c.yaml",
@@ -176,15 +176,15 @@ def test_config_layers_and_bad_config_key(write_manifest: Callable[..., Path], t
                 {
                     "name": "b",
                     "simulate": {"scenario": "tiny"},
-                    "config_overrides": {"graph": {"barometer_factors": True}},
+                    "config_overrides": {"graph": {"ablation": {"barometer_factors": True}}},
                 },
             ],
         )
     )
     m = load_manifest(path)
     a, b = (resolve_config(m, e) for e in m.logs)
-    assert a["graph"]["barometer_factors"] is False and a["mapping"]["voxel_size_m"] == 0.3
-    assert b["graph"]["barometer_factors"] is True and b["mapping"]["voxel_size_m"] == 0.3
+    assert a["graph"]["ablation"]["barometer_factors"] is False and a["mapping"]["voxel_size_m"] == 0.3
+    assert b["graph"]["ablation"]["barometer_factors"] is True and b["mapping"]["voxel_size_m"] == 0.3
     # Only what the layers set: a default stays a default for the stage that tells them apart.
     assert "floors" not in a and set(a["mapping"]) == {"voxel_size_m"}
     jobs = make_jobs(m, tmp_path / "out")

@@ -163,8 +163,8 @@ def test_worse_config_fails_naming_the_metric(tmp_path: Path) -> None:
     data["baseline"] = str(QUICK_BASELINE)
     data["logs"] = [e for e in data["logs"] if e["name"] == "tiny"]
     data["config_overrides"] = {
-        "graph": {"inter_floor_registration": False, "elevator_continuity": False},
-        "mapping": {"cabin_filter": False},
+        "graph": {"ablation": {"inter_floor_registration": False, "elevator_continuity": False}},
+        "mapping": {"cabin": {"filter": False}},
     }
     path = tmp_path / "worse.yaml"
     path.write_text(yaml.safe_dump(data))
