@@ -10,7 +10,7 @@ from mfmap.sim.camera import RgbdSpec
 from mfmap.sim.layout import FamilySpec, generate_building
 from mfmap.sim.route import RouteBuilder
 from mfmap.sim.sensors import BaroSpec, LaserSpec, LidarSpec
-from mfmap.sim.sessions import Session, session_scenarios
+from mfmap.sim.sessions import SESSION_LIDAR, SESSION_PLANS, Session
 from mfmap.sim.spec import BuildingSpec, corridor_block, office_block
 from mfmap.sim.world import WorldSpec
 
@@ -478,4 +478,17 @@ SCENARIOS: dict[str, ScenarioSpec] = {
     )
 }
 # Several logs of one building on different days.
-SCENARIOS.update({s.name: s for s in session_scenarios()})
+
+
+def _session_scenarios() -> list[ScenarioSpec]:
+    """The sessions of mfmap.sim.sessions as scenarios: the office block of n_floors storeys
+    (building None), as the single-log scenarios' own."""
+    return [
+        ScenarioSpec(p.name, p.description, p.n_floors, p.floor_height_m, p.route,
+                     start_floor=p.start_floor, lidar=SESSION_LIDAR, world=WorldSpec.harsh(),
+                     gt_spacing_m=0.08, session=p.session)
+        for p in SESSION_PLANS
+    ]
+
+
+SCENARIOS.update({s.name: s for s in _session_scenarios()})

@@ -32,11 +32,9 @@ import numpy as np
 from mfmap.atomic import write_bytes_atomic
 from mfmap.sim.route import RouteBuilder
 from mfmap.sim.sensors import LidarSpec
-from mfmap.sim.world import WorldSpec
 
 if TYPE_CHECKING:
     from mfmap.sim.building import Building
-    from mfmap.sim.scenarios import ScenarioSpec
 
 
 @dataclass(frozen=True)
@@ -207,11 +205,13 @@ def _office3_day4(b: RouteBuilder, reps: int) -> None:
     b.checkpoint("P1", 3.0)
 
 
-_LIDAR = LidarSpec(beams=16, columns=512)
+SESSION_LIDAR = LidarSpec(beams=16, columns=512)
 
 
 @dataclass(frozen=True)
-class _Plan:
+class SessionPlan:
+    """One session's scenario: the building (office block), its route, start and day."""
+
     name: str
     description: str
     n_floors: int
@@ -221,39 +221,26 @@ class _Plan:
     session: Session
 
 
-_PLANS = (
-    _Plan("tiny-day1", "tiny building, day 1: the tiny route (both floors from the dock), ~1.5 min",
+SESSION_PLANS = (
+    SessionPlan("tiny-day1", "tiny building, day 1: the tiny route (both floors from the dock), ~1.5 min",
           2, 3.5, _tiny_day1, 0, Session("tiny", 1)),
-    _Plan("tiny-day2", "tiny building, day 2: starts on the upper floor at P2 facing north, "
+    SessionPlan("tiny-day2", "tiny building, day 2: starts on the upper floor at P2 facing north, "
           "rides down, P2 and P1, ~1.3 min", 2, 3.5, _tiny_day2, 1,
           Session("tiny", 2, start_xy=P2, start_yaw_deg=90.0)),
-    _Plan("tiny-day3", "tiny building, day 3: the lower floor alone, P1 to P2 and back, ~40 s",
+    SessionPlan("tiny-day3", "tiny building, day 3: the lower floor alone, P1 to P2 and back, ~40 s",
           2, 3.5, _tiny_day3, 0, Session("tiny", 3)),
-    _Plan("office3-day1", "three-floor office (4.0 m storeys), day 1: floors 0-1 from the "
+    SessionPlan("office3-day1", "three-floor office (4.0 m storeys), day 1: floors 0-1 from the "
           "dock, the west loop on each, ~4 min", 3, 4.0, _office3_day1, 0, Session("office3", 1)),
-    _Plan("office3-day2", "three-floor office, day 2: floors 1-2, starts on floor 1 at P3 "
+    SessionPlan("office3-day2", "three-floor office, day 2: floors 1-2, starts on floor 1 at P3 "
           "facing north, ~4.5 min", 3, 4.0, _office3_day2, 1,
           Session("office3", 2, start_xy=P3, start_yaw_deg=90.0)),
-    _Plan("office3-day3", "three-floor office, day 3: all three floors from the dock, the west "
+    SessionPlan("office3-day3", "three-floor office, day 3: all three floors from the dock, the west "
           "loop and the east corridors on each, ~9 min", 3, 4.0, _office3_day3, 0,
           Session("office3", 3)),
-    _Plan("office3-day4", "three-floor office, day 4: starts on the top floor in corridor E "
+    SessionPlan("office3-day4", "three-floor office, day 4: starts on the top floor in corridor E "
           "facing south, rides down to the ground floor, tours, up to floor 1, ~7 min", 3, 4.0,
           _office3_day4, 2, Session("office3", 4, start_xy=(14.25, -6.0), start_yaw_deg=-90.0)),
 )
 
 
-def session_scenarios() -> list[ScenarioSpec]:
-    """The sessions as scenarios (registered in mfmap.sim.scenarios)."""
-    from mfmap.sim.scenarios import ScenarioSpec
-
-    # The office block of n_floors storeys (building None), as the single-log scenarios' own.
-    return [
-        ScenarioSpec(p.name, p.description, p.n_floors, p.floor_height_m, p.route,
-                     start_floor=p.start_floor, lidar=_LIDAR, world=WorldSpec.harsh(),
-                     gt_spacing_m=0.08, session=p.session)
-        for p in _PLANS
-    ]
-
-
-__all__ = ["Session", "session_scenarios"]
+__all__ = ["SESSION_LIDAR", "SESSION_PLANS", "Session", "SessionPlan"]
