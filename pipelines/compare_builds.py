@@ -5,7 +5,7 @@
 BEFORE and AFTER are `python -m pipelines.regression MANIFEST --out DIR` folders of the same
 manifest, built by two versions of the code on one machine. Every file of every log's build
 must be byte-identical, except what records the run rather than the map:
-- report.json: compared with its timings, build time, peak memory and log path removed;
+- report.json: compared without its timings, peak memory and input paths (RUN_RECORDS);
 - report.html: compared with every number masked (it shows the same timings);
 - config.yaml: not compared (the user's configuration, written in the keys of the version that
   built; a change of the configuration's layout changes it and nothing else).
@@ -22,22 +22,23 @@ import sys
 from pathlib import Path
 from typing import Any
 
-RUN_RECORDS = {
-    "summary": ("build_s", "realtime_factor", "peak_rss_mb"),
-    "mapping": ("elapsed_s", "scans_per_s"),
-    "graph": ("seconds",),
-}
+# What a report (a build's or a localisation's) records of the run rather than of the map: left
+# out wherever it appears in the report.
+RUN_RECORDS = {"timings_s", "cpu_timings_s", "log", "map", "build_s", "elapsed_s", "cpu_s",
+               "realtime_factor", "cpu_realtime_factor", "peak_rss_mb", "scans_per_s", "seconds"}
 NOT_BUILDS = {"eval.json", "summary.md", "junit.xml", "results.json"}
 
 
-def _report(path: Path) -> Any:
-    doc = json.loads(path.read_text(encoding="utf-8"))
-    doc.pop("timings_s", None)
-    doc.pop("log", None)
-    for section, keys in RUN_RECORDS.items():
-        for key in keys:
-            doc.get(section, {}).pop(key, None)
+def _without_run_records(doc: Any) -> Any:
+    if isinstance(doc, dict):
+        return {k: _without_run_records(v) for k, v in doc.items() if k not in RUN_RECORDS}
+    if isinstance(doc, list):
+        return [_without_run_records(v) for v in doc]
     return doc
+
+
+def _report(path: Path) -> Any:
+    return _without_run_records(json.loads(path.read_text(encoding="utf-8")))
 
 
 def _masked(path: Path) -> str:
