@@ -20,7 +20,8 @@ import numpy as np
 
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.errors import MissingDataError
-from mfmap.export.scans import accumulate, read_scans
+from mfmap.export.scans import accumulate
+from mfmap.mapping.source import read_scans
 from mfmap.progress import NullProgress, Progress
 from mfmap.report import (
     BuildReport,

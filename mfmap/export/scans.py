@@ -27,6 +27,7 @@ from mfmap.mapping.cabin import (
     outside_cabins,
 )
 from mfmap.mapping.geometry import deskew, inverse, rotation_angle_rad, twist
+from mfmap.mapping.source import read_scans
 from mfmap.progress import NullProgress, Progress, StageProgress
 from mfmap.types import F64, Extrinsics, FloorSegmentation, MappingResult, Role, TransitionKind
 
@@ -240,17 +241,6 @@ def _near_transition(stamp_ns: int, spans: list[tuple[int, int]]) -> bool:
     return any(lo <= stamp_ns <= hi for lo, hi in spans)
 
 
-def read_scans(src: LogSource, planar: bool, start_ns: int | None = None,
-           end_ns: int | None = None) -> Iterator[tuple[int, str, np.ndarray, np.ndarray | None]]:
-    if planar:
-        for scan in src.scans2d(start_ns, end_ns):
-            xyz = np.column_stack([scan.xy, np.zeros(len(scan.xy), dtype=np.float32)])
-            yield scan.stamp_ns, scan.frame_id, xyz, scan.t_offset_ns
-    else:
-        for cloud in src.clouds(start_ns, end_ns):
-            yield cloud.stamp_ns, cloud.frame_id, cloud.xyz, cloud.t_offset_ns
-
-
 def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i: int,
             max_gap_ns: int = 250_000_000) -> F64:
     """Points measured at stamp + t_offset, expressed in the base frame at the scan's stamp.
@@ -277,4 +267,4 @@ def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i
     return deskew(points_base, t_offset_ns.astype(np.float64) / 1e9, angular, linear)
 
 
-__all__ = ["accumulate", "add_depth_cameras", "read_scans"]
+__all__ = ["accumulate", "add_depth_cameras"]
