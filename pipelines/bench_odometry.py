@@ -49,8 +49,8 @@ def _load(folder: Path) -> tuple[list[Any], Any, Any, Any]:
 def _errors(folder: Path, stamps: np.ndarray, poses: np.ndarray) -> dict[str, float]:
     from scipy.spatial.transform import Rotation
 
+    from mfmap.eval.odometry import read_tum
     from mfmap.mapping.geometry import PoseInterpolator, inverse
-    from mfmap.mapping.metrics import read_tum
 
     gt_stamps, gt_poses = read_tum(folder / "gt_trajectory.tum")
     truth = PoseInterpolator(gt_stamps, gt_poses[:, :3, 3],

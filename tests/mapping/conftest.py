@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mfmap.mapping.metrics import read_tum
+from mfmap.eval.odometry import read_tum
 from mfmap.types import Floor, FloorSegmentation, Transition, TransitionKind
 
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from mfmap.eval.io import read_points_csv
+from mfmap.eval.odometry import VisitError, read_tum, visit_errors
 from mfmap.ingest import open_log
 from mfmap.mapping import map_floors
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_rad
-from mfmap.mapping.metrics import VisitError, read_tum, visit_errors
 from mfmap.mapping.posegraph import optimize_all_visits, scan_trajectory
 from mfmap.types import FloorSegmentation, MappingResult, Role
 

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mfmap.eval.odometry import read_tum, visit_errors
 from mfmap.ingest import open_log
 from mfmap.mapping import map_floors
 from mfmap.mapping.chunks import STAIRS_PRIME_NS, plan_chunks
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_rad
-from mfmap.mapping.metrics import read_tum, visit_errors
 from mfmap.mapping.posegraph import optimize_all_visits, scan_trajectory
 from mfmap.mapping.timeline import Timeline
 from mfmap.types import FloorSegmentation, MappingResult, Role

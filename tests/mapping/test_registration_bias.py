@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mfmap.eval.odometry import read_tum
 from mfmap.ingest import open_log
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import PoseInterpolator, deskew, inverse, transform, twist, yaw_pose
 from mfmap.mapping.loops import LoopCloser
-from mfmap.mapping.metrics import read_tum
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.registration import downsample
 from mfmap.types import Cloud, FloorSegmentation

@@ -1,6 +1,6 @@
-"""Per-visit trajectory errors of a MappingResult against a ground-truth TUM file.
+"""Per-visit trajectory errors of the mapping stage's odometry against a ground-truth TUM file.
 
-Used by the mapping tests and `pipelines/bench_odometry.py`; the user-facing scores are in eval.
+Used by the mapping tests and `pipelines/bench_odometry.py`; a build's own scores are in `api`.
 """
 
 from __future__ import annotations
@@ -11,24 +11,20 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mfmap.errors import GroundTruthError
+from mfmap.eval import io
 from mfmap.mapping.geometry import PoseInterpolator, yaw_pose, yaw_rad
 from mfmap.mapping.posegraph import scan_trajectory
 from mfmap.types import F64, I64, MappingResult
 
 
 def read_tum(path: Path) -> tuple[I64, F64]:
-    """(stamp_ns (N,), poses (N, 4, 4)) from a TUM file `t x y z qx qy qz qw`."""
-    try:
-        rows = np.loadtxt(path, comments="#", ndmin=2)
-    except (OSError, ValueError) as err:
-        raise GroundTruthError(f"not a TUM trajectory ({err})", path) from err
-    if rows.shape[1] != 8:
-        raise GroundTruthError(f"expected 8 columns, found {rows.shape[1]}", path)
-    stamps = np.round(rows[:, 0] * 1e9).astype(np.int64)
-    poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    poses[:, :3, :3] = Rotation.from_quat(rows[:, 4:8]).as_matrix()
-    poses[:, :3, 3] = rows[:, 1:4]
+    """(stamp_ns (N,), poses (N, 4, 4)) from a TUM file `t x y z qx qy qz qw`, read by
+    `mfmap.eval.io.read_tum`."""
+    traj = io.read_tum(path)
+    stamps = np.round(traj.stamps_s * 1e9).astype(np.int64)
+    poses = np.tile(np.eye(4), (len(stamps), 1, 1))
+    poses[:, :3, :3] = Rotation.from_quat(traj.quat_xyzw).as_matrix()
+    poses[:, :3, 3] = traj.xyz
     return stamps, poses
 
 
