@@ -21,6 +21,7 @@ import numpy as np
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.errors import MissingDataError
 from mfmap.export.scans import accumulate
+from mfmap.logs import WarningCollector, collect_warnings
 from mfmap.mapping.source import read_scans
 from mfmap.progress import NullProgress, Progress
 from mfmap.report import (
@@ -59,6 +60,11 @@ if TYPE_CHECKING:
     from mfmap.types import MappingResult
 
 logger = logging.getLogger(__name__)
+# The stages' returned warnings, reported under their stage's name.
+_ingest_log = logging.getLogger("mfmap.ingest")
+_floors_log = logging.getLogger("mfmap.floors")
+_mapping_log = logging.getLogger("mfmap.mapping")
+_export_log = logging.getLogger("mfmap.export")
 
 
 def build(
@@ -83,16 +89,15 @@ def build(
     log, out = Path(log), Path(out)
     # Checked before the heavy imports, so a refused output folder costs no time.
     run = RunFolder.create(out, [log, *inputs], log_folders(log), force, input_size(log))
-    warnings: list[str] = [f"build: {note}" for note in run.notes]
-    threads = unlimited_threads()
-    if threads is not None:
-        warnings.append(f"build: {threads}")
-    with run.writing() as partial:
+    # The build's notes and the log's warnings lead the report; the others follow as they arose.
+    with collect_warnings(first=("build", "ingest")) as collected, run.writing() as partial:
+        for note in _notes(run):
+            logger.warning(note)
         from mfmap.export.write import write_outputs
         from mfmap.ingest import open_log
 
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
-            stages = _Stages.start(log, src, cfg, progress, warnings, workers)
+            stages = _Stages.start(log, src, cfg, progress, collected, workers)
             floors = stages.floors()
             mapping = stages.mapping(floors)
             pressure_png = stages.pressure_figure(floors.seg)
@@ -109,7 +114,6 @@ def build(
                     html=stages.cfg.export.html_report, pool=stages.pool,
                     pressure_png=pressure_png, cabins=cabins,
                 )
-                warnings += summary.warnings
         stages.timings["export"] = time.perf_counter() - t0
         elapsed = time.perf_counter() - started
         report.finish(elapsed)
@@ -119,8 +123,14 @@ def build(
         log=log, out=out, log_duration_s=stages.log_duration_s, elapsed_s=elapsed,
         timings_s=stages.timings, floors=floor_rows(doc), transitions=transition_rows(doc),
         connectors=connector_rows(doc), counts=report.counts, graph=report.graph, files=files,
-        warnings=warnings,
+        warnings=report.warnings,
     )
+
+
+def _notes(run: RunFolder) -> list[str]:
+    """The build's own warnings: the output folder's notes, threads the build cannot limit."""
+    threads = unlimited_threads()
+    return [*run.notes, *([threads] if threads is not None else [])]
 
 
 # ----- stages ------------------------------------------------------------------------------
@@ -146,7 +156,7 @@ class _Floors:
 @dataclass
 class _Stages:
     """One build's stages over an open log, and what they share: the resolved configuration,
-    the mounts, the worker pool, the warnings and the timings."""
+    the mounts, the worker pool, the build's warnings and the timings."""
 
     log: Path
     src: LogSource
@@ -156,18 +166,14 @@ class _Stages:
     colour_cameras: list[ColourCamera]
     progress: Progress
     pool: Executor | None
-    warnings: list[str]
-    ingest_at: int  # where the ingest warnings go: first, though they are known last
+    collected: WarningCollector
     log_duration_s: float
     timings: dict[str, float] = field(default_factory=dict)
 
     @classmethod
     def start(cls, log: Path, src: LogSource, cfg: MfmapConfig, progress: Progress,
-              warnings: list[str], workers: ExitStack) -> _Stages:
+              collected: WarningCollector, workers: ExitStack) -> _Stages:
         """Check the lidar, start the worker pool, take the sensor decisions, find the cameras."""
-        # The ingest warnings are copied last: reading the barometer, the IMU or the scans
-        # can warn too, at any stage.
-        ingest_at = len(warnings)
         if Role.LIDAR not in src.roles and Role.SCAN2D not in src.roles:
             raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)", log)
         check_lidar_density(src, cfg.mapping)
@@ -194,18 +200,20 @@ class _Stages:
         from mfmap.ingest.colour import colour_cameras as find_colour_cameras
 
         colour_cameras, colour_warnings = find_colour_cameras(src, cameras, cfg.camera)
-        warnings += [f"export: {w}" for w in colour_warnings]
+        for text in colour_warnings:
+            _export_log.warning(text)
         log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
         return cls(log, src, cfg, extrinsics, cameras, list(colour_cameras), progress, pool,
-                   warnings, ingest_at, log_duration_s)
+                   collected, log_duration_s)
 
     def floors(self) -> _Floors:
         from mfmap.floors.pipeline import barometer_temperature
 
         with _timed(self.timings, "floors"):
-            stage_cfg, scale_sigma = barometer_temperature(self.src, self.cfg, self.warnings)
-            pressure, seg = segment_floors(self.src, stage_cfg, self.warnings)
-            self.warnings += [f"floors: {w}" for w in seg.warnings]
+            stage_cfg, scale_sigma = barometer_temperature(self.src, self.cfg)
+            pressure, seg = segment_floors(self.src, stage_cfg)
+            for text in seg.warnings:
+                _floors_log.warning(text)
         if len(seg.floors) < 2:
             self.pool = None  # one floor: mapped in this process, its map by this process
         return _Floors(pressure, seg, stage_cfg, scale_sigma)
@@ -216,7 +224,8 @@ class _Stages:
         with _timed(self.timings, "mapping"):
             mapping = map_floors(self.src, floors.seg, self.cfg.mapping, self.extrinsics,
                                  self.progress, self.pool)
-            self.warnings += [f"mapping: {w}" for w in mapping.warnings]
+            for text in mapping.warnings:
+                _mapping_log.warning(text)
         if not mapping.keyframes:
             raise MissingDataError("no keyframes: the lidar gave no usable scans", self.log)
         if floors.pressure is None:
@@ -243,7 +252,6 @@ class _Stages:
             graph = optimise(mapping, floors.seg, floors.pressure, self.src.imu(), self.extrinsics,
                              floors.cfg, self.progress, odom=self.src.odometry(), pool=self.pool,
                              scale_prior_sigma=floors.scale_sigma)
-            self.warnings += graph.warnings
         return graph
 
     def maps(self, seg: FloorSegmentation, mapping: MappingResult,
@@ -265,7 +273,8 @@ class _Stages:
         with _timed(self.timings, "cabins"):
             cabins, cabin_warnings = measure_from_log(self.src, seg, trajectory.stamps_ns,
                                                       trajectory.poses, self.extrinsics)
-            self.warnings += [f"export: {w}" for w in cabin_warnings]
+            for text in cabin_warnings:
+                _export_log.warning(text)
         return cabins
 
     def report(self, floors: _Floors, mapping: MappingResult, graph: GraphResult,
@@ -283,20 +292,23 @@ class _Stages:
             **({"depth_images": maps.images} if camera_images else {}),
             "pressure_samples": len(pressure) if pressure is not None else 0,
         }
-        self.warnings[self.ingest_at:self.ingest_at] = [f"ingest: {w}" for w in self.src.warnings]
+        # Reading the barometer, the IMU or the scans can warn at any stage: the log's
+        # warnings are complete only now.
+        for text in self.src.warnings:
+            _ingest_log.warning(text)
         summary = ReportSummary(len(seg.floors), len(seg.transitions), self.log_duration_s,
                                 len(mapping.keyframes))
         return BuildReport(
             log=str(self.log), ingest=self.src.report(), summary=summary, counts=counts,
             timings_s=self.timings, mapping={k: float(v) for k, v in mapping.stats.items()},
-            graph=graph.to_json(), warnings=self.warnings,
+            graph=graph.to_json(), warnings=self.collected.lines(),
         )
 
 
 def segment_floors(
-    src: LogSource, cfg: MfmapConfig, warnings: list[str]
+    src: LogSource, cfg: MfmapConfig
 ) -> tuple[PressureSeries | None, FloorSegmentation]:
-    """Barometer -> floors; a log without barometer becomes one floor, with a warning."""
+    """Barometer -> floors; a log without barometer becomes one floor, with a warning (logged)."""
     from mfmap.floors.motion import motion_from_imu, motion_from_odometry
     from mfmap.floors.segment import segment_pressure
 
@@ -315,7 +327,7 @@ def segment_floors(
                 "robot changed floors, and a multi-floor map needs the barometer (topic role 'baro')",
                 src.path,
             ) from None
-        warnings.append("no barometer in the log: building a single-floor map")
+        logger.warning("no barometer in the log: building a single-floor map", extra={"stage": ""})
         return None, single_floor(src.start_ns, src.end_ns)
     odom = src.odometry()
     imu = src.imu()

@@ -85,10 +85,9 @@ def ablations(sim: Path, work: Path) -> list[tuple[str, dict[str, Any]]]:
     from mfmap.report import BuildReport, ReportSummary
 
     cfg = MfmapConfig()
-    warnings: list[str] = []
     rows = []
     with open_log(sim / "log.mcap", cfg.ingest) as src:
-        pressure, seg = pipeline.segment_floors(src, cfg, warnings)
+        pressure, seg = pipeline.segment_floors(src, cfg)
         extrinsics = src.extrinsics()
         mapping = map_floors(src, seg, cfg.mapping, extrinsics)
         imu, odom = src.imu(), src.odometry()

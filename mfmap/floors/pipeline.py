@@ -14,6 +14,7 @@ from mfmap.errors import LogError
 from mfmap.floors.io import read_pressure_csv
 from mfmap.floors.motion import MotionEvidence, motion_from_imu, motion_from_odometry
 from mfmap.floors.segment import segment_pressure
+from mfmap.logs import collect_warnings
 from mfmap.types import FloorSegmentation
 
 if TYPE_CHECKING:
@@ -36,8 +37,8 @@ def segment_path(path: Path, cfg: MfmapConfig) -> FloorSegmentation:
     from mfmap.ingest import open_log
 
     with open_log(path, cfg.ingest) as src:
-        notes: list[str] = []
-        cfg, _ = barometer_temperature(src, cfg, notes)
+        with collect_warnings() as notes:
+            cfg, _ = barometer_temperature(src, cfg)
         pressure = src.pressure()
         motion: MotionEvidence | None = None
         odom = src.odometry()
@@ -47,7 +48,7 @@ def segment_path(path: Path, cfg: MfmapConfig) -> FloorSegmentation:
             imu = src.imu()
             if imu is not None and len(imu) > 1:
                 motion = motion_from_imu(imu, cfg.floors)
-        warnings = list(src.warnings) + [n.removeprefix("floors: ") for n in notes]
+        warnings = list(src.warnings) + [n.removeprefix("floors: ") for n in notes.lines()]
     seg = segment_pressure(pressure, motion, cfg.floors)
     if motion is None:
         warnings.append("no odometry or IMU: transition kinds are unknown")
@@ -59,24 +60,24 @@ def segment_path(path: Path, cfg: MfmapConfig) -> FloorSegmentation:
 _AIR_C = (-30.0, 60.0)
 
 
-def barometer_temperature(src: LogSource, cfg: MfmapConfig, warnings: list[str]) -> tuple[MfmapConfig, float | None]:
+def barometer_temperature(src: LogSource, cfg: MfmapConfig) -> tuple[MfmapConfig, float | None]:
     """The config the stages use, with floors.temperature_k from the barometer's Temperature
     topic (its median) when the log has one and the user did not set the temperature, and the
     sigma of the barometer's height scale that goes with it (None: the graph's default, for the
-    assumed temperature)."""
+    assumed temperature). Its notes are logged."""
     temperature = src.temperature()
     if temperature is None or len(temperature) == 0:
         return cfg, None
     median_c = float(np.median(temperature.temperature_c))
     if "temperature_k" in cfg.floors.model_fields_set:
-        warnings.append(f"floors: temperature_k set in the config ({cfg.floors.temperature_k:g} K): the "
-                        f"barometer's Temperature topic {temperature.topic} ({median_c:.1f} deg C) is not used")
+        logger.warning("temperature_k set in the config (%g K): the barometer's Temperature topic %s "
+                       "(%.1f deg C) is not used", cfg.floors.temperature_k, temperature.topic, median_c)
         return cfg, None
     if not _AIR_C[0] <= median_c <= _AIR_C[1]:
-        warnings.append(f"floors: {temperature.topic} reads {median_c:.1f} deg C, not the air of a building: "
-                        "not used for the barometer's scale")
+        logger.warning("%s reads %.1f deg C, not the air of a building: not used for the barometer's "
+                       "scale", temperature.topic, median_c)
         return cfg, None
     temperature_k = median_c + 273.15
-    warnings.append(f"floors: barometer's height scale at {median_c:.1f} deg C (median of {temperature.topic})")
+    logger.warning("barometer's height scale at %.1f deg C (median of %s)", median_c, temperature.topic)
     floors = cfg.floors.model_copy(update={"temperature_k": temperature_k})
     return cfg.model_copy(update={"floors": floors}), cfg.graph.barometer.temperature_sigma_k / temperature_k

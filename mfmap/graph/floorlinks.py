@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import logging
 import math
 from collections.abc import Sequence
 from concurrent.futures import Executor
@@ -26,6 +27,8 @@ from mfmap.graph.factors import (
 )
 from mfmap.graph.interfloor import FloorMatch, register_floors
 from mfmap.types import F64, FloorSegmentation, Keyframe
+
+logger = logging.getLogger(__name__)
 
 
 def floor_points(
@@ -174,9 +177,10 @@ def add_interfloor(
 
 
 def bridge_components(
-    builder: Builder, kfs: list[Keyframe], initial: dict[int, F64], warnings: list[str]
+    builder: Builder, kfs: list[Keyframe], initial: dict[int, F64]
 ) -> None:
-    """Link parts of the graph nothing else connects, weakly, at their initial relative pose."""
+    """Link parts of the graph nothing else connects, weakly, at their initial relative pose
+    (each link with a warning)."""
     ids = [k.id for k in kfs]
     comp = _components(ids, builder.links)
     seen = {comp[ids[0]]}
@@ -187,7 +191,5 @@ def bridge_components(
         seen.add(root)
         measured = relative_level(initial[prev.id], initial[kf.id], None)
         builder.between("bridge", prev.id, kf.id, measured, [0.1, 0.1, 0.1, 1.0, 1.0, FREE_SIGMA], robust=False)
-        warnings.append(
-            f"graph: keyframes {prev.id} and {kf.id} had no measurement linking them; "
-            "bridged weakly at the mapping stage's relative pose"
-        )
+        logger.warning("keyframes %d and %d had no measurement linking them; bridged weakly at the "
+                       "mapping stage's relative pose", prev.id, kf.id)

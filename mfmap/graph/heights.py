@@ -197,7 +197,7 @@ def _check_physics(
             f"{p.baro.height_change_m:+.2f} m" for p in pairs if p.scale_true is not None and p.baro is not None
         )
         cal.warnings.append(
-            f"graph: the barometer disagrees with every scale-true height beyond what the air in a "
+            f"the barometer disagrees with every scale-true height beyond what the air in a "
             f"building allows (scale {lo:g}-{hi:g}; {listed}): the scale-true heights are used, the "
             "barometer's are not"
         )

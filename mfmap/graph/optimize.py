@@ -65,6 +65,7 @@ from mfmap.graph.floorlinks import (
 from mfmap.graph.heights import Calibration
 from mfmap.graph.interfloor import FloorMatch
 from mfmap.graph.transitions import Walk, add_transitions, height_keys
+from mfmap.logs import collect_warnings
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import (
     F64,
@@ -162,7 +163,6 @@ def optimize_building(
     """
     started = time.perf_counter()
     progress = progress or NullProgress()
-    warnings: list[str] = []
     if not keyframes:
         raise ValueError("optimize_building needs at least one keyframe")
     kfs = sorted(keyframes, key=lambda k: (k.stamp_ns, k.id))
@@ -174,10 +174,11 @@ def optimize_building(
         values.insert(X(kf.id), gtsam.Pose3(initial_poses[kf.id]))
 
     sensors = _Sensors(pressure, temperature_k, gravity_body, imu, scale_prior_sigma)
-    result, iterations, matches, rides, calibration = _solve(
-        builder, values, kfs, edges, initial_poses, segmentation, config, warnings, sensors, executor,
-        progress,
-    )
+    with collect_warnings() as collected:  # logged, and kept in the result (report.json's "graph")
+        result, iterations, matches, rides, calibration = _solve(
+            builder, values, kfs, edges, initial_poses, segmentation, config, sensors, executor,
+            progress,
+        )
     _count_outliers(builder, values, result, config)
     poses = {i: np.asarray(result.atPose3(X(i)).matrix(), dtype=np.float64) for i in ids}
     return GraphResult(
@@ -191,7 +192,7 @@ def optimize_building(
         error_initial=float(builder.graph.error(values)),
         error_final=float(builder.graph.error(result)),
         seconds=time.perf_counter() - started,
-        warnings=warnings,
+        warnings=collected.lines(),
         rides=rides,
         heights=_height_model(result, kfs, calibration),
     )
@@ -205,7 +206,6 @@ def _solve(
     initial_poses: dict[int, F64],
     segmentation: FloorSegmentation | None,
     config: GraphConfig,
-    warnings: list[str],
     sensors: _Sensors,
     executor: Executor | None,
     progress: Progress,
@@ -214,14 +214,13 @@ def _solve(
     floors' matches, the transitions' report entries and the barometer's calibration."""
     with progress.stage("graph", total=3) as bar:
         rides, calibration = _add_factors(
-            builder, values, kfs, edges, initial_poses, segmentation, config, warnings,
-            sensors,
+            builder, values, kfs, edges, initial_poses, segmentation, config, sensors,
         )
         bar.advance()
 
         # Phase 1: every factor but the inter-floor ones, so each floor's map is consistent
         # before floors are registered against each other.
-        bridge_components(builder, kfs, initial_poses, warnings)
+        bridge_components(builder, kfs, initial_poses)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(config.max_iterations)
         params.setRelativeErrorTol(1e-7)
@@ -232,7 +231,7 @@ def _solve(
         bar.advance()
 
         result, more, matches = _register_and_optimize(builder, kfs, result, params, segmentation,
-                                                       config, executor, warnings)
+                                                       config, executor)
         iterations += more
         bar.advance()
 
@@ -259,18 +258,16 @@ def _add_factors(
     initial_poses: dict[int, F64],
     segmentation: FloorSegmentation | None,
     config: GraphConfig,
-    warnings: list[str],
     sensors: _Sensors,
 ) -> tuple[list[dict[str, Any]], Calibration]:
     """Every factor of phase 1; returns the transitions' report entries and the barometer's
     calibration."""
-    walks = _add_edges(builder, kfs, edges, initial_poses, config, warnings)
+    walks = _add_edges(builder, kfs, edges, initial_poses, config)
     _add_barometer(
         builder, values, kfs, initial_poses, sensors.pressure, segmentation, config, sensors.temperature_k,
-        warnings,
     )
     rides, calibration = add_transitions(builder, values, kfs, initial_poses, segmentation, config,
-                                         sensors.imu, walks, sensors.scale_prior_sigma, warnings)
+                                         sensors.imu, walks, sensors.scale_prior_sigma)
     if config.ablation.same_floor_height_tie:
         add_height_ties(builder, values, kfs, initial_poses)
     if config.ablation.gravity_factors:
@@ -284,7 +281,6 @@ def _add_edges(
     edges: Sequence[PoseEdge],
     initial_poses: dict[int, F64],
     config: GraphConfig,
-    warnings: list[str],
 ) -> dict[tuple[int, int], Walk]:
     """The prior on the first keyframe and the mapping stage's odometry and loop edges; returns
     the stair walks, whose height change is weighed with the barometer's per transition."""
@@ -302,7 +298,7 @@ def _add_edges(
     walks: dict[tuple[int, int], Walk] = {}
     for edge in edges:
         if edge.i not in known or edge.j not in known:
-            warnings.append(f"graph: edge {edge.i}->{edge.j} refers to an unknown keyframe")
+            logger.warning("edge %d->%d refers to an unknown keyframe", edge.i, edge.j)
             continue
         if edge.kind != "odometry" and not _consistent(edge, initial_poses, config):
             # A loop that contradicts the mapping stage's own map by metres or tens of
@@ -359,7 +355,6 @@ def _register_and_optimize(
     segmentation: FloorSegmentation | None,
     config: GraphConfig,
     executor: Executor | None,
-    warnings: list[str],
 ) -> tuple[Any, int, list[FloorMatch]]:
     """Phase 2: register adjacent floors on the phase-1 maps, add the factors, optimise again.
     Returns the result, the further iterations and the floors' matches."""
@@ -372,7 +367,7 @@ def _register_and_optimize(
                                  executor)
         for m in matches:
             if not m.accepted:
-                warnings.append(f"graph: floors {m.lower}/{m.upper} not registered ({m.reason})")
+                logger.warning("floors %d/%d not registered (%s)", m.lower, m.upper, m.reason)
         if any(m.accepted for m in matches):
             optimizer = gtsam.LevenbergMarquardtOptimizer(builder.graph, result, params)
             result = optimizer.optimize()
@@ -429,12 +424,11 @@ def _add_barometer(
     seg: FloorSegmentation | None,
     config: GraphConfig,
     temperature_k: float,
-    warnings: list[str],
 ) -> None:
     if not config.ablation.barometer_factors:
         return
     if pressure is None or len(pressure) == 0:
-        warnings.append("graph: no barometer, barometric factors skipped")
+        logger.warning("no barometer, barometric factors skipped")
         return
     stamps = np.array([k.stamp_ns for k in kfs], dtype=np.int64)
     if config.barometer.source == BaroSource.FILTERED and seg is not None and len(seg.stamp_ns) > 1:

@@ -7,6 +7,7 @@ raw trace either side, mfmap.floors.levels.level_change), weighed by mfmap.graph
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -39,6 +40,8 @@ from mfmap.types import (
     Transition,
     TransitionKind,
 )
+
+logger = logging.getLogger(__name__)
 
 # Model error added (in quadrature) to a barometric level change's own sigma: what the fit cannot
 # see, such as a floor kept at a slightly different pressure by its air handling (1 Pa ~ 8.5 cm).
@@ -82,7 +85,6 @@ def add_transitions(
     imu: ImuSeries | None,
     walks: dict[tuple[int, int], Walk],
     scale_prior_sigma: float | None,
-    warnings: list[str],
 ) -> tuple[list[dict[str, Any]], Calibration]:
     """Per transition: its height change from the scale-true sensor (an elevator ride's from the
     IMU, a stair walk's from the lidar) and from the barometer, weighed by mfmap.graph.heights and
@@ -124,8 +126,8 @@ def add_transitions(
                 kernel=RobustKernel.CAUCHY,
             )
 
-    calibration = _weigh(builder, values, kfs, measured_heights, walks, prior, config, warnings)
-    _report_heights(measured_heights.items, rides, calibration, warnings)
+    calibration = _weigh(builder, values, kfs, measured_heights, walks, prior, config)
+    _report_heights(measured_heights.items, rides, calibration)
     return rides, calibration
 
 
@@ -194,7 +196,6 @@ def _weigh(
     walks: dict[tuple[int, int], Walk],
     prior: tuple[float, float],
     config: GraphConfig,
-    warnings: list[str],
 ) -> Calibration:
     """Calibrate the barometer on the transitions measured both ways, decide which heights are
     used, and add them as factors; a stair walk with no transition gets the lidar's climb."""
@@ -206,7 +207,8 @@ def _weigh(
         # Again on the measurements kept, and decided again on that calibration.
         calibration = heights.calibrate(items, prior, config.barometer.offset_sigma_m, used_only=True)
         heights.decide(items, calibration, start_floor, config.heights.gate_sigma)
-    warnings.extend(calibration.warnings)
+    for text in calibration.warnings:
+        logger.warning(text)
     _add_heights(builder, values, items, measured.keys, walk_of, calibration)
     if config.ablation.walk_height:
         # A walk the floors stage has no transition for (no barometer): the lidar's climb alone.
@@ -218,8 +220,7 @@ def _weigh(
 
 
 def _report_heights(
-    items: list[TransitionHeights], rides: list[dict[str, Any]], calibration: Calibration,
-    warnings: list[str],
+    items: list[TransitionHeights], rides: list[dict[str, Any]], calibration: Calibration
 ) -> None:
     """Each transition's report entry: the heights used, and a warning for a height left out."""
     for item in items:
@@ -228,12 +229,12 @@ def _report_heights(
                                                           (item.baro, item.use_baro)) if m is not None and used]
         entry["heights"] = item.why
         if not entry["heights_used"]:
-            warnings.append(f"graph: {item.label}: no height measurement used ({item.why}); its floors' "
-                            "heights come from the others")
+            logger.warning("%s: no height measurement used (%s); its floors' heights come from the "
+                           "others", item.label, item.why)
         elif item.scale_true is not None and not item.use_scale_true:
-            warnings.append(f"graph: {item.label}: the {item.scale_true.source}'s height left out ({item.why})")
+            logger.warning("%s: the %s's height left out (%s)", item.label, item.scale_true.source, item.why)
         elif item.baro is not None and item.use_scale_true and calibration.usable and not item.use_baro:
-            warnings.append(f"graph: {item.label}: the barometer's height left out ({item.why})")
+            logger.warning("%s: the barometer's height left out (%s)", item.label, item.why)
 
 
 def _add_heights(

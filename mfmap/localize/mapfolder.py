@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from mfmap.mapping.registration import IcpTarget
 
 logger = logging.getLogger(__name__)
+_MAP = {"stage": "map"}  # what is wrong with the map folder, apart from the localisation's own
 
 # A floor needs this many points to be searched or tracked against.
 MIN_FLOOR_POINTS = 200
@@ -61,7 +62,6 @@ class BuildingMap:
     path: Path
     floors: dict[int, FloorMap]
     connectors: list[dict[str, Any]]
-    warnings: list[str] = field(default_factory=list)
 
     @property
     def elevations(self) -> dict[int, float]:
@@ -88,7 +88,6 @@ def load_map(path: Path, voxel_m: float, normal_radius_m: float,
     floors_file = read_floors_json(path / "floors.json", MapError)
     connectors = _connectors(path / "floors.json")
     floors: dict[int, FloorMap] = {}
-    warnings: list[str] = []
     for info in floors_file.floors:
         if not math.isfinite(info.elevation_m):
             raise MapError(f"floor {info.id} has no finite elevation", path / "floors.json")
@@ -102,15 +101,15 @@ def load_map(path: Path, voxel_m: float, normal_radius_m: float,
         xyz = xyz[np.isfinite(xyz).all(axis=1)]
         thin = downsample(xyz, voxel_m)
         if len(thin) < MIN_FLOOR_POINTS:
-            warnings.append(f"floor {info.id}: {len(thin)} points in its cloud, too few to "
-                            "localise on; left out")
+            logger.warning("floor %d: %d points in its cloud, too few to localise on; left out",
+                           info.id, len(thin), extra=_MAP)
             continue
         floors[info.id] = FloorMap(info.id, info.elevation_m, thin,
                                    IcpTarget.estimate(thin, normal_radius_m),
-                                   _grid(path / "floors" / str(info.id), warnings), band_m)
+                                   _grid(path / "floors" / str(info.id)), band_m)
     if not floors:
         raise MapError("no floor of the map has a usable cloud", path / "floors")
-    return BuildingMap(path, floors, connectors, warnings)
+    return BuildingMap(path, floors, connectors)
 
 
 def _connectors(path: Path) -> list[dict[str, Any]]:
@@ -119,7 +118,7 @@ def _connectors(path: Path) -> list[dict[str, Any]]:
     return [c for c in items if isinstance(c, dict)]
 
 
-def _grid(folder: Path, warnings: list[str]) -> LoadedGrid | None:
+def _grid(folder: Path) -> LoadedGrid | None:
     """The floor's occupancy grid, to draw the path on (optional: a map without grids works)."""
     from mfmap.eval.grids import load_grid
 
@@ -128,5 +127,5 @@ def _grid(folder: Path, warnings: list[str]) -> LoadedGrid | None:
     try:
         return load_grid(folder)
     except (MfmapError, OSError, ValueError, TypeError, KeyError) as err:
-        warnings.append(f"{folder / 'grid.yaml'}: not drawn ({err})")
+        logger.warning("%s: not drawn (%s)", folder / "grid.yaml", err, extra=_MAP)
         return None

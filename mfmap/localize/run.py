@@ -35,6 +35,7 @@ from mfmap.errors import MfmapError, MissingDataError
 from mfmap.localize.records import Hint, LocalizeResult, Status, Timings
 from mfmap.localize.searching import Probing
 from mfmap.localize.tracking import Tracking
+from mfmap.logs import collect_warnings
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import F64, FloorSegmentation, Role
 
@@ -42,6 +43,7 @@ if TYPE_CHECKING:
     from rich.console import RenderableType
 
 logger = logging.getLogger(__name__)
+_ingest_log = logging.getLogger("mfmap.ingest")  # the log's own warnings, read off the LogSource
 
 
 def localize(
@@ -68,38 +70,40 @@ def localize(
     check_output(out, [log, map_dir], [*_log_folders(log), map_dir], force)
     lc = cfg.localize
     timings = Timings()
-    warnings: list[str] = []
-    with timings("map"):
-        building = load_map(map_dir, lc.map_voxel_m, 3.0 * lc.map_voxel_m, lc.band_m)
-    warnings += [f"map: {w}" for w in building.warnings]
-    if hint is not None and hint.floor is not None and hint.floor not in building.floors:
-        raise MfmapError(f"--floor {hint.floor}: the map has floors "
-                         f"{', '.join(str(f) for f in sorted(building.floors))}")
-    folder = RunFolder.create(out, [log, map_dir], [*_log_folders(log), map_dir], force,
-                              input_size(log))
-    warnings += [f"localize: {note}" for note in folder.notes]
-    partial = folder.partial
-    with folder:
-        with timings("open"):
-            src = open_log(log, cfg.ingest)
-        with src:
-            warnings += [f"ingest: {w}" for w in src.warnings]
-            if Role.LIDAR not in src.roles:
-                what = "only 2D LaserScan" if Role.SCAN2D in src.roles else "no lidar"
-                raise MissingDataError(f"localize needs a 3D lidar (PointCloud2); the log has {what}",
-                                       log)
-            run = _Localizer(src, building, cfg, hint, warnings, timings, progress)
-            run.run()
-        log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
-        elapsed = time.perf_counter() - started
-        summary = run.summary(log, map_dir, log_duration_s, elapsed, time.process_time() - cpu0)
-        with timings("output"):
-            files = write_outputs(partial, run, summary, cfg, building)
-        summary.update(_finish_report(partial / "report.json", timings, started, cpu0,
-                                      log_duration_s))
-        folder.commit()
-    return LocalizeResult.of(log, map_dir, out, log_duration_s, summary, files, warnings,
-                             dict(timings.cpu_s))
+    # Every warning of the run, in the order they arose, into its report.
+    with collect_warnings() as collected:
+        with timings("map"):
+            building = load_map(map_dir, lc.map_voxel_m, 3.0 * lc.map_voxel_m, lc.band_m)
+        if hint is not None and hint.floor is not None and hint.floor not in building.floors:
+            raise MfmapError(f"--floor {hint.floor}: the map has floors "
+                             f"{', '.join(str(f) for f in sorted(building.floors))}")
+        folder = RunFolder.create(out, [log, map_dir], [*_log_folders(log), map_dir], force,
+                                  input_size(log))
+        for note in folder.notes:
+            logger.warning(note)
+        partial = folder.partial
+        with folder:
+            with timings("open"):
+                src = open_log(log, cfg.ingest)
+            with src:
+                for text in src.warnings:
+                    _ingest_log.warning(text)
+                if Role.LIDAR not in src.roles:
+                    what = "only 2D LaserScan" if Role.SCAN2D in src.roles else "no lidar"
+                    raise MissingDataError(f"localize needs a 3D lidar (PointCloud2); the log has {what}",
+                                           log)
+                run = _Localizer(src, building, cfg, hint, collected, timings, progress)
+                run.run()
+            log_duration_s = max((src.end_ns - src.start_ns) / 1e9, 0.0)
+            elapsed = time.perf_counter() - started
+            summary = run.summary(log, map_dir, log_duration_s, elapsed, time.process_time() - cpu0)
+            with timings("output"):
+                files = write_outputs(partial, run, summary, cfg, building)
+            summary.update(_finish_report(partial / "report.json", timings, started, cpu0,
+                                          log_duration_s))
+            folder.commit()
+        return LocalizeResult.of(log, map_dir, out, log_duration_s, summary, files, collected.lines(),
+                                 dict(timings.cpu_s))
 
 
 def _finish_report(path: Path, timings: Timings, started: float, cpu0: float,
@@ -136,8 +140,8 @@ class _Localizer(Tracking, Probing):
             if self.mode == "track":
                 self._flush()
         if self.prep.missing_frames:
-            self.warnings.append("no extrinsic for lidar frame(s) "
-                                 f"{', '.join(sorted(self.prep.missing_frames))}: used identity")
+            logger.warning("no extrinsic for lidar frame(s) %s: used identity",
+                           ", ".join(sorted(self.prep.missing_frames)), extra={"stage": ""})
 
     def _scan(self, stamp_ns: int, frame_id: str, xyz: np.ndarray, t_offset_ns: np.ndarray | None
               ) -> None:

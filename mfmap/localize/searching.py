@@ -86,8 +86,7 @@ class Searching(LocalizerState):
             self.query = None
             return
         if fix is None and self.hint is not None and self.hint.has_pose:
-            self.warnings.append(f"localize: the initial pose does not fit (fitness {best:.2f}): "
-                                 "searching without it")
+            logger.warning("the initial pose does not fit (fitness %.2f): searching without it", best)
             self.hint = Hint(floor=self.hint.floor)
         if fix is None:
             self.query = None

@@ -18,10 +18,12 @@ if TYPE_CHECKING:
     from mfmap.localize.mapfolder import BuildingMap
     from mfmap.localize.search import Candidate
     from mfmap.localize.track import ScanPrep, Wheels
+    from mfmap.logs import WarningCollector
     from mfmap.mapping.motion import MotionModel
     from mfmap.mapping.timeline import Timeline
 
 logger = logging.getLogger(__name__)
+_floors_log = logging.getLogger("mfmap.floors")  # the floors stage's returned warnings
 
 # Search timing: without a fix, the next search waits longer each time (up to MAX_RETRY_S), so
 # a log that never fits (another building) costs a few searches, not one every retry_s.
@@ -61,7 +63,7 @@ class LocalizerState:
     """The log, the map, the floors' hypotheses and where the localiser stands."""
 
     def __init__(self, src: LogSource, building: BuildingMap, cfg: MfmapConfig, hint: Hint | None,
-                 warnings: list[str], timings: Timings, progress: Progress) -> None:
+                 collected: WarningCollector, timings: Timings, progress: Progress) -> None:
         from mfmap.localize.levels import best_hypotheses, floor_hypotheses
         from mfmap.mapping.timeline import Timeline
         from mfmap.pipeline import segment_floors
@@ -71,12 +73,13 @@ class LocalizerState:
         self.cfg = cfg
         self.lc = cfg.localize
         self.hint = hint
-        self.warnings = warnings
+        self.collected = collected
         self.timings = timings
         self.progress = progress
         with timings("floors"):
-            self.pressure, self.seg = segment_floors(src, cfg, warnings)
-        warnings += [f"floors: {w}" for w in self.seg.warnings]
+            self.pressure, self.seg = segment_floors(src, cfg)
+        for text in self.seg.warnings:
+            _floors_log.warning(text)
         self.timeline = Timeline(self.seg)
         self.motion, self.wheels, self.prep = _scan_prep(src, cfg, self.timeline)
         self.tolerance_m = building.floor_tolerance_m(self.lc.floor_tolerance_share,
@@ -87,7 +90,8 @@ class LocalizerState:
         self.tops = best_hypotheses(self.hypotheses)
         self.chosen: FloorHypothesis | None = None
         if self.pressure is None:
-            warnings.append("no barometer: the floor is not followed through rides or stairs")
+            logger.warning("no barometer: the floor is not followed through rides or stairs",
+                           extra={"stage": ""})
         self.track = Track()
         self.searches = 0
         self.search_log: list[dict[str, Any]] = []
@@ -113,6 +117,11 @@ class LocalizerState:
         self.ride_from: tuple[int, int, F64] | None = None  # (map floor, start ns, pose)
         self.profiles: dict[int, Any] = {}  # ride start -> its height profile
         self.attempt_ns: int | None = None  # the last registration tried
+
+    @property
+    def warnings(self) -> list[str]:
+        """The run's warnings so far (its report's)."""
+        return self.collected.lines()
 
     def _status_unposed(self) -> Status:
         return {"no_floor": Status.NO_FLOOR, "ambiguous": Status.AMBIGUOUS}.get(self.mode,

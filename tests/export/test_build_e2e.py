@@ -174,7 +174,7 @@ def stages(tiny: Path) -> tuple[Any, Any, Any, Any]:
 
     cfg = MfmapConfig()
     with open_log(tiny / "log.mcap", cfg.ingest) as src:
-        pressure, seg = pipeline.segment_floors(src, cfg, [])
+        pressure, seg = pipeline.segment_floors(src, cfg)
         ext = src.extrinsics()
         mapping = map_floors(src, seg, cfg.mapping, ext)
         graph = pipeline.optimise(mapping, seg, pressure, src.imu(), ext, cfg, NullProgress(),

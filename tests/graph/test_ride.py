@@ -29,7 +29,7 @@ def test_tiny_scenario_ride_within_2cm_of_truth(sim_run: Any) -> None:
     truth = json.loads((folder / "gt_floors.json").read_text())["transitions"]
     cfg = MfmapConfig()
     with open_log(folder / "log.mcap", cfg.ingest) as src:
-        _, seg = segment_floors(src, cfg, [])
+        _, seg = segment_floors(src, cfg)
         imu = src.imu()
     assert len(seg.transitions) == len(truth) == 1
     tr = seg.transitions[0]

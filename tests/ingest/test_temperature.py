@@ -14,6 +14,7 @@ from mfmap.errors import LogError
 from mfmap.floors.pipeline import barometer_temperature
 from mfmap.ingest import open_log
 from mfmap.ingest.config import IngestConfig
+from mfmap.logs import collect_warnings
 from mfmap.types import Role
 
 
@@ -51,11 +52,11 @@ def test_the_temperature_in_the_barometers_frame_is_read(tmp_path: Path, ros1: b
         assert series.temperature_c.tolist() == [21.0, 21.5, 22.0, 22.5, 23.0]
         assert np.all(np.diff(series.stamp_ns) > 0)
         assert len(src.pressure()) == 10  # read in the same pass
-        warnings: list[str] = []
-        cfg, sigma = barometer_temperature(src, MfmapConfig(), warnings)
+        with collect_warnings() as collected:
+            cfg, sigma = barometer_temperature(src, MfmapConfig())
     assert cfg.floors.temperature_k == pytest.approx(22.0 + 273.15)
     assert sigma == pytest.approx(2.0 / (22.0 + 273.15))
-    assert warnings == ["floors: barometer's height scale at 22.0 deg C (median of /baro/temperature)"]
+    assert collected.lines() == ["floors: barometer's height scale at 22.0 deg C (median of /baro/temperature)"]
 
 
 def test_no_temperature_in_the_barometers_frame(tmp_path: Path) -> None:
@@ -63,33 +64,30 @@ def test_no_temperature_in_the_barometers_frame(tmp_path: Path) -> None:
     with open_log(path) as src:
         assert src.temperature() is None
         assert any("no Temperature topic in the barometer's frame 'baro'" in w for w in src.warnings)
-        cfg, sigma = barometer_temperature(src, MfmapConfig(), [])
+        cfg, sigma = barometer_temperature(src, MfmapConfig())
     assert cfg.floors.temperature_k == MfmapConfig().floors.temperature_k and sigma is None
     # Chosen in the config, the topic is used whatever its frame.
     with open_log(path, IngestConfig(topics={"temperature": "/cpu/temperature"})) as src:
         series = src.temperature()
         assert series is not None and series.temperature_c.tolist() == [55.0] * 3
-        warnings: list[str] = []
-        cfg, sigma = barometer_temperature(src, MfmapConfig(), warnings)
+        cfg, sigma = barometer_temperature(src, MfmapConfig())
     # 55 deg C is within what a building's air can be; 200 is not.
     assert cfg.floors.temperature_k == pytest.approx(328.15)
     path = _log(tmp_path / "hot.mcap", False, {"/baro/temperature": ("baro", [200.0] * 3)})
-    with open_log(path) as src:
-        warnings = []
-        cfg, sigma = barometer_temperature(src, MfmapConfig(), warnings)
+    with open_log(path) as src, collect_warnings() as collected:
+        cfg, sigma = barometer_temperature(src, MfmapConfig())
     assert sigma is None and cfg.floors.temperature_k == MfmapConfig().floors.temperature_k
-    assert warnings == ["floors: /baro/temperature reads 200.0 deg C, not the air of a building: not used for "
+    assert collected.lines() == ["floors: /baro/temperature reads 200.0 deg C, not the air of a building: not used for "
                         "the barometer's scale"]
 
 
 def test_a_configured_temperature_wins(tmp_path: Path) -> None:
     path = _log(tmp_path / "t.mcap", False, {"/baro/temperature": ("baro", [30.0] * 3)})
     cfg = MfmapConfig.model_validate({"floors": {"temperature_k": 280.0}})
-    with open_log(path) as src:
-        warnings: list[str] = []
-        used, sigma = barometer_temperature(src, cfg, warnings)
+    with open_log(path) as src, collect_warnings() as collected:
+        used, sigma = barometer_temperature(src, cfg)
     assert used.floors.temperature_k == 280.0 and sigma is None
-    assert "is not used" in warnings[0]
+    assert "is not used" in collected.lines()[0]
 
 
 def test_a_temperature_topic_of_the_wrong_type_is_an_error(tmp_path: Path) -> None:
