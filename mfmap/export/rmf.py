@@ -89,7 +89,9 @@ def building_yaml(name: str, floors_doc: dict[str, Any], grids: dict[int, dict[s
     levels: dict[str, Any] = {}
     for floor in floors_doc["floors"]:
         fid = floor["id"]
-        levels[level_name(fid)] = _level(floor, grids.get(fid), poses.get(fid, []), warnings)
+        if grids.get(fid) is None:
+            warnings.append(f"building.yaml: floor {fid} has no grid; its level has no map image")
+        levels[level_name(fid)] = _level(floor, grids.get(fid), poses.get(fid, []))
     lifts: dict[str, Any] = {}
     for cabin in cabins:
         made = _lift(len(lifts), cabin, floor_ids)
@@ -113,8 +115,8 @@ def building_yaml(name: str, floors_doc: dict[str, Any], grids: dict[int, dict[s
     return doc, warnings
 
 
-def _level(floor: dict[str, Any], grid: dict[str, Any] | None, connectors: list[dict[str, Any]],
-           warnings: list[str]) -> dict[str, Any]:
+def _level(floor: dict[str, Any], grid: dict[str, Any] | None,
+           connectors: list[dict[str, Any]]) -> dict[str, Any]:
     """One floor's level: its elevation, its grid image as a layer, its connector poses."""
     fid = floor["id"]
     level: dict[str, Any] = {"elevation": float(floor["elevation_m"])}
@@ -129,8 +131,6 @@ def _level(floor: dict[str, Any], grid: dict[str, Any] | None, connectors: list[
                           "translation_x": round(float(grid["origin"][0]), 4),
                           "translation_y": round(float(grid["origin"][1]) + grid["height"] * res, 4)},
         }}
-    else:
-        warnings.append(f"building.yaml: floor {fid} has no grid; its level has no map image")
     vertices = []
     for conn in connectors:
         for when in ("depart", "arrive"):

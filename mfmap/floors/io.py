@@ -71,7 +71,9 @@ def read_pressure_csv(path: Path) -> tuple[PressureSeries, list[str]]:
     if not values:
         raise LogError("no rows of numbers in the pressure CSV", path)
     t_s = np.asarray(times, dtype=np.float64)
-    p = _in_pa(np.asarray(values, dtype=np.float64), path, warnings)
+    p, converted = _in_pa(np.asarray(values, dtype=np.float64), path)
+    if converted:
+        warnings.append(converted)
     order = np.argsort(t_s, kind="stable")
     stamp_ns = np.round(t_s[order] * 1e9).astype(np.int64)
     return PressureSeries(stamp_ns=stamp_ns, pressure_pa=p[order], frame_id=path.stem), warnings
@@ -93,14 +95,15 @@ def _columns(header: list[str] | None, width: int) -> tuple[int, int, float]:
     return t_col, p_col, time_scale
 
 
-def _in_pa(p: F64, path: Path, warnings: list[str]) -> F64:
-    """Pressures in Pa, the unit told by their median's magnitude (a warning when converted)."""
+def _in_pa(p: F64, path: Path) -> tuple[F64, str]:
+    """Pressures in Pa, the unit told by their median's magnitude, and a warning when converted
+    ("" when not)."""
     median = float(np.median(p[np.isfinite(p)])) if np.any(np.isfinite(p)) else float("nan")
     for lo, hi, factor, unit in _UNIT_BY_MAGNITUDE:
         if lo <= median < hi:
-            if unit != "Pa":
-                warnings.append(f"pressure in {path.name} read as {unit} (median {median:g}), converted to Pa")
-            return p * factor
+            if unit == "Pa":
+                return p * factor, ""
+            return p * factor, f"pressure in {path.name} read as {unit} (median {median:g}), converted to Pa"
     raise LogError(f"pressure values around {median:g} are not Pa, hPa or kPa of indoor air", path)
 
 

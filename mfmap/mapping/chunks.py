@@ -157,12 +157,13 @@ def map_chunk(job: ChunkJob) -> ChunkResult:
                 break  # the next chunk's first scan: counted there
             scans += visit >= chunk.first_visit or not chunk.after_stairs  # not the priming scans
         # What this process's reading dropped (scans with broken stamps) is the build's to say.
-        mapper.warnings += [w for w in src.stream_warnings() if w not in mapper.warnings]
+        warnings = mapper.warnings
+        warnings += [w for w in src.stream_warnings() if w not in warnings]
     mapper.finish_run()
     book = mapper.book
     return ChunkResult(book.keyframes, book.edges, book.scan_poses, book.pending,
                        chunk.first_visit, mapper.state.pose, scans, mapper.counters(),
-                       mapper.warnings, mapper.state.stamp_ns, first_scan_ns, anchor, anchor_ns)
+                       warnings, mapper.state.stamp_ns, first_scan_ns, anchor, anchor_ns)
 
 
 def map_parallel(source: LogSourceLike, seg: FloorSegmentation, cfg: MappingConfig,

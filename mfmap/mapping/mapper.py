@@ -59,17 +59,21 @@ class Mapper:
         self.loops = LoopCloser(cfg, planar=planar)
         self.state = TrackState()
         self.book = PoseBook()
-        self.warnings: list[str] = []
+        self._opening: list[str] = []  # the warnings known before the first scan
         self.counts = ScanCounts()
-        self.step = ScanStep(cfg, extrinsics, motion, planar, self.matcher, self.cabin,
-                             self.counts, self.warnings)
+        self.step = ScanStep(cfg, extrinsics, motion, planar, self.matcher, self.cabin, self.counts)
         # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
         self.wheels = RunScale(cfg.motion.odom_scale_min_m)
         if motion.source != "odometry" and cfg.cabin.filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
         ):
-            self.warnings.append(
+            self._opening.append(
                 "no wheel odometry: cabin returns are only filtered when leaving an elevator")
+
+    @property
+    def warnings(self) -> list[str]:
+        """The warnings so far, in the order things happened."""
+        return [*self._opening, *self.step.warnings]
 
     def add_scan(self, stamp_ns: int, frame_id: str, xyz: F32, t_offset_ns: I64 | None) -> None:
         segment = self.timeline.at(stamp_ns)
@@ -264,12 +268,12 @@ class Mapper:
     def result(self) -> MappingResult:
         self.finish_run()
         book = self.book
+        warnings = self.warnings
         if book.pending and not book.keyframes:
-            self.warnings.append("no keyframe could be made: no usable lidar scans")
+            warnings.append("no keyframe could be made: no usable lidar scans")
         elif book.pending:
             book.hang_pending_on_last()
         figures = stats(self.counters(), len(book.scan_poses), book.keyframes, book.edges)
         if self.matcher.failures:
-            self.warnings.append(
-                f"{self.matcher.failures} scans could not be registered (motion prior used)")
-        return MappingResult(book.keyframes, book.edges, book.scan_poses, self.warnings, figures)
+            warnings.append(f"{self.matcher.failures} scans could not be registered (motion prior used)")
+        return MappingResult(book.keyframes, book.edges, book.scan_poses, warnings, figures)

@@ -66,7 +66,7 @@ class ScanStep:
 
     def __init__(self, cfg: MappingConfig, extrinsics: Extrinsics, motion: MotionModel,
                  planar: bool, matcher: ScanMatcher | Scan2DMatcher, cabin: CabinFilter | None,
-                 counts: ScanCounts, warnings: list[str]) -> None:
+                 counts: ScanCounts) -> None:
         self.cfg = cfg
         self.extrinsics = extrinsics
         self.motion = motion
@@ -74,7 +74,7 @@ class ScanStep:
         self.matcher = matcher
         self.cabin = cabin
         self.counts = counts
-        self.warnings = warnings  # the mapper's, in the order things happened
+        self.warnings: list[str] = []  # in the order they arose
         self.still = StandStill(cfg, motion)
         self._missing_frames: set[str] = set()
 
