@@ -91,5 +91,5 @@ def test_a_grid_too_big_for_memory_is_refused_before_it_is_allocated() -> None:
     builder = GridBuilder(0.05)
     builder.add_obstacles(np.array([[0.0, 0.0], [20_000.0, 20_000.0]]))
     with pytest.raises(MissingDataError, match=r"grid would be 400041 x 400041 cells .* over "
-                                               r"export\.max_grid_mb \(2048 MB\)"):
+                                               r"export\.grid\.max_mb \(2048 MB\)"):
         builder.build()

@@ -78,7 +78,7 @@ def painted_figures(ply: dict[str, Any], seed: int = 0) -> dict[str, float]:
     channel) of the paint of the true surface nearest to them."""
     import open3d as o3d
 
-    from mfmap.sim.building import _make_scene
+    from mfmap.sim.boxes import make_scene
     from mfmap.sim.camera import box_colours
     from mfmap.sim.scenarios import SCENARIOS, building_for
 
@@ -86,7 +86,7 @@ def painted_figures(ply: dict[str, Any], seed: int = 0) -> dict[str, float]:
     boxes = building.static_boxes() + [building.landing_door(k) for k in range(building.n_floors)]
     xyz = np.column_stack([ply["x"], ply["y"], ply["z"]]).astype(np.float32)
     tensor: Any = o3d.core.Tensor
-    ans = _make_scene(boxes).compute_closest_points(tensor(xyz))
+    ans = make_scene(boxes).compute_closest_points(tensor(xyz))
     paint = box_colours(boxes)[ans["primitive_ids"].numpy() // 12].astype(int)
     rgb = np.column_stack([ply["red"], ply["green"], ply["blue"]]).astype(int)
     grey = np.all(rgb == 128, axis=1)
