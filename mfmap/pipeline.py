@@ -51,7 +51,7 @@ if TYPE_CHECKING:
 
     from mfmap.export.cabin import Cabin
     from mfmap.export.mapdata import MapAccumulator
-    from mfmap.export.write import Trajectory
+    from mfmap.export.write import FloorTrajectory
     from mfmap.graph.optimize import GraphResult
     from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
@@ -255,7 +255,7 @@ class _Stages:
         return graph
 
     def maps(self, seg: FloorSegmentation, mapping: MappingResult,
-             graph: GraphResult) -> tuple[Trajectory, MapAccumulator, dict[str, int]]:
+             graph: GraphResult) -> tuple[FloorTrajectory, MapAccumulator, dict[str, int]]:
         """The second pass over the scans (and the depth cameras): the floors' clouds and grids."""
         from mfmap.export.scans import add_depth_cameras
 
@@ -266,7 +266,7 @@ class _Stages:
                                               self.colour_cameras)
         return trajectory, maps, camera_images
 
-    def cabins(self, seg: FloorSegmentation, trajectory: Trajectory) -> list[Cabin]:
+    def cabins(self, seg: FloorSegmentation, trajectory: FloorTrajectory) -> list[Cabin]:
         """The scans in the elevator cabins, left out of the maps, measure the cabins."""
         from mfmap.export.cabin import measure_from_log
 

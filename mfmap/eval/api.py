@@ -11,7 +11,7 @@ from mfmap.eval.config import EvalConfig
 from mfmap.eval.metrics import EvalResult
 
 if TYPE_CHECKING:
-    from mfmap.eval.io import FloorsFile, Trajectory
+    from mfmap.eval.io import FloorsFile, TumTrajectory
 
 logger = logging.getLogger(__name__)
 
@@ -103,7 +103,7 @@ def _check_inputs(
             raise GroundTruthError("file not found", given)
 
 
-def _score_points(result: EvalResult, points: Path, est_traj: Trajectory, est_floors: FloorsFile) -> None:
+def _score_points(result: EvalResult, points: Path, est_traj: TumTrajectory, est_floors: FloorsFile) -> None:
     """Errors at the surveyed points, from the build's trajectory at their times."""
     from mfmap.eval import io
     from mfmap.eval.points import point_errors, points_metrics, points_table, spread_warnings
@@ -117,8 +117,8 @@ def _score_points(result: EvalResult, points: Path, est_traj: Trajectory, est_fl
 def _score_trajectory(
     result: EvalResult,
     trajectory: Path,
-    est_traj: Trajectory,
-    gt_traj: Trajectory,
+    est_traj: TumTrajectory,
+    gt_traj: TumTrajectory,
     visits_file: FloorsFile,
     align: str,
     cfg: EvalConfig,

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mfmap.eval.io import FloorsFile, Trajectory, TransitionInfo
+from mfmap.eval.io import FloorsFile, TransitionInfo, TumTrajectory
 from mfmap.eval.trajectory import pose_at
 
 # Each true transition with the estimated one matched to it, if any.
@@ -101,8 +101,8 @@ def _ride_error(
     g: TransitionInfo,
     e: TransitionInfo,
     lower: int,
-    est_traj: Trajectory | None,
-    gt_traj: Trajectory | None,
+    est_traj: TumTrajectory | None,
+    gt_traj: TumTrajectory | None,
 ) -> RideError:
     sign = 1.0 if g.from_id == lower else -1.0  # orient every ride lower -> upper
     ride = RideError(
@@ -136,8 +136,8 @@ def compare_floors(
     est: FloorsFile,
     gt: FloorsFile,
     tolerance_s: float,
-    est_traj: Trajectory | None = None,
-    gt_traj: Trajectory | None = None,
+    est_traj: TumTrajectory | None = None,
+    gt_traj: TumTrajectory | None = None,
 ) -> FloorsComparison:
     """Floor count, time on the right floor, elevation errors, inter-floor errors at connectors."""
     out = FloorsComparison()
@@ -200,8 +200,8 @@ def _inter_floor_errors(
     gt: FloorsFile,
     matched: Matched,
     to_est: dict[int, int],
-    est_traj: Trajectory | None,
-    gt_traj: Trajectory | None,
+    est_traj: TumTrajectory | None,
+    gt_traj: TumTrajectory | None,
 ) -> None:
     """Per pair of adjacent true floors: the rides' plan errors and the height error between them."""
     m = out.metrics

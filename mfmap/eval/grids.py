@@ -24,7 +24,7 @@ from mfmap.errors import GroundTruthError, OutputError
 from mfmap.export.grid import FREE, OCCUPIED, UNKNOWN, precision_recall, rasterise
 
 if TYPE_CHECKING:
-    from mfmap.eval.io import Trajectory
+    from mfmap.eval.io import TumTrajectory
 
 GRID_KEYS = frozenset({"image", "mode", "resolution", "origin", "negate", "occupied_thresh", "free_thresh"})
 
@@ -206,7 +206,7 @@ def score_build(
 
 
 def floor_viewpoints(
-    path: Trajectory,
+    path: TumTrajectory,
     floor: dict[str, Any],
     transitions: list[dict[str, Any]],
     spacing_m: float = 0.25,

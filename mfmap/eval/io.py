@@ -149,13 +149,15 @@ def read_cloud(path: Path, error: type[MfmapError] = GroundTruthError) -> PointS
 
 
 @dataclass(frozen=True)
-class Trajectory:
+class TumTrajectory:
+    """Poses read from a TUM file: time in seconds, position, unit quaternion."""
+
     stamps_s: F64  # (N,) sorted
     xyz: F64  # (N, 3)
     quat_xyzw: F64  # (N, 4) unit
 
 
-def read_tum(path: Path, error: type[MfmapError] = GroundTruthError) -> Trajectory:
+def read_tum(path: Path, error: type[MfmapError] = GroundTruthError) -> TumTrajectory:
     """A TUM file `t x y z qx qy qz qw` (spaces or commas, '#' comments), sorted by time."""
     if not path.is_file():
         raise error("file not found", path)
@@ -182,7 +184,7 @@ def read_tum(path: Path, error: type[MfmapError] = GroundTruthError) -> Trajecto
         raise error(f"pose {bad + 1}: quaternion is not unit length ({norms[bad]:.4f})", path)
     order = np.argsort(mat[:, 0], kind="stable")
     mat = mat[order]
-    return Trajectory(mat[:, 0].copy(), mat[:, 1:4].copy(), mat[:, 4:8] / norms[order, None])
+    return TumTrajectory(mat[:, 0].copy(), mat[:, 1:4].copy(), mat[:, 4:8] / norms[order, None])
 
 
 # ------------------------------------------------------------------------------------- points

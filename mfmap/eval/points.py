@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mfmap.errors import GroundTruthError
-from mfmap.eval.io import GtPoint, Trajectory
+from mfmap.eval.io import GtPoint, TumTrajectory
 
 # Hilti SLAM Challenge 2023 scoring (github.com/Hilti-Research/hilti-slam-challenge-2023, README):
 # error below each threshold earns the points; 40 cm or more earns 0.
@@ -49,7 +49,7 @@ class PointError:
 
 def point_errors(
     points: list[GtPoint],
-    traj: Trajectory,
+    traj: TumTrajectory,
     build_floors: list[int],
     points_path: Path,
 ) -> list[PointError]:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mfmap.eval.io import Trajectory
+from mfmap.eval.io import TumTrajectory
 from mfmap.types import F64, I64
 
 
@@ -89,7 +89,7 @@ class PoseErrors:
     align_translation: F64
 
 
-def pose_errors(est: Trajectory, gt: Trajectory, max_diff_s: float, align: str = "none") -> PoseErrors:
+def pose_errors(est: TumTrajectory, gt: TumTrajectory, max_diff_s: float, align: str = "none") -> PoseErrors:
     """Associate `est` with `gt` by time and compute position and rotation errors.
 
     Raises ValueError when no stamps pair up.
@@ -159,7 +159,7 @@ def per_floor_metrics(errors: PoseErrors, visits: dict[int, list[tuple[float, fl
     return m
 
 
-def pose_at(traj: Trajectory, t_s: float) -> tuple[F64, float]:
+def pose_at(traj: TumTrajectory, t_s: float) -> tuple[F64, float]:
     """Position and yaw (rad) of the pose nearest in time to t_s."""
     i = int(np.argmin(np.abs(traj.stamps_s - t_s)))
     rot = quat_to_matrix(traj.quat_xyzw[i : i + 1])

@@ -10,9 +10,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from mfmap.export.write import ExportSummary, Trajectory, optimised_trajectory, write_outputs
+    from mfmap.export.write import (
+        ExportSummary,
+        FloorTrajectory,
+        optimised_trajectory,
+        write_outputs,
+    )
 
-__all__ = ["ExportSummary", "Trajectory", "optimised_trajectory", "write_outputs"]
+__all__ = ["ExportSummary", "FloorTrajectory", "optimised_trajectory", "write_outputs"]
 
 
 def __getattr__(name: str) -> Any:

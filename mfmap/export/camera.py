@@ -14,14 +14,14 @@ from mfmap.ingest.camera_config import CameraConfig
 from mfmap.types import F64
 
 if TYPE_CHECKING:
-    from mfmap.export.write import Trajectory
+    from mfmap.export.write import FloorTrajectory
     from mfmap.ingest.depth import Camera
     from mfmap.ingest.source import LogSource
 
 logger = logging.getLogger(__name__)
 
 
-def pose_at(trajectory: Trajectory, stamp_ns: int, max_gap_ns: int) -> tuple[F64, int] | None:
+def pose_at(trajectory: FloorTrajectory, stamp_ns: int, max_gap_ns: int) -> tuple[F64, int] | None:
     """Base pose (4x4) and floor at a stamp between two trajectory poses of one floor: the
     translation interpolated linearly, the rotation by slerp. None outside the trajectory, across
     a gap longer than max_gap_ns or a floor change."""
@@ -48,7 +48,7 @@ def pose_at(trajectory: Trajectory, stamp_ns: int, max_gap_ns: int) -> tuple[F64
     return out, int(trajectory.floor[a])
 
 
-def add_cameras(src: LogSource, cameras: list[Camera], trajectory: Trajectory, maps: MapAccumulator,
+def add_cameras(src: LogSource, cameras: list[Camera], trajectory: FloorTrajectory, maps: MapAccumulator,
                 config: CameraConfig, band_m: tuple[float, float],
                 usable: Callable[[int, F64], bool],
                 keep: Callable[[np.ndarray, F64, int], np.ndarray] | None = None) -> dict[str, int]:

@@ -27,7 +27,7 @@ from mfmap.types import F64
 
 if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
-    from mfmap.export.write import Trajectory
+    from mfmap.export.write import FloorTrajectory
     from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import CameraModel
     from mfmap.ingest.source import LogSource
@@ -42,7 +42,7 @@ OCCLUSION_TOL_SHARE = 0.05
 MAX_SPLAT_PX = 4  # splat radius cap, in depth-buffer cells
 
 
-def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: Trajectory,
+def paint_clouds(src: LogSource, cameras: list[ColourCamera], trajectory: FloorTrajectory,
                  maps: MapAccumulator, config: CameraConfig, usable: Callable[[int, F64], bool]) -> int:
     """Paint the floor clouds' points that the colour images see; returns the images used."""
     if not cameras or not maps.floor_ids():
@@ -98,7 +98,7 @@ class _Tiles:
         return np.sort(np.concatenate(parts))
 
 
-def _posed_images(src: LogSource, cam: ColourCamera, trajectory: Trajectory, config: CameraConfig,
+def _posed_images(src: LogSource, cam: ColourCamera, trajectory: FloorTrajectory, config: CameraConfig,
                   usable: Callable[[int, F64], bool]) -> Iterator[tuple[int, F64, np.ndarray[Any, Any]]]:
     """(floor, base pose, RGB image) of the camera's images that the trajectory poses, off the
     rides, after the robot moved or turned enough since the last one used."""

@@ -33,7 +33,7 @@ from mfmap.types import F64, Extrinsics, FloorSegmentation, MappingResult, Role,
 
 if TYPE_CHECKING:
     from mfmap.export.mapdata import MapAccumulator
-    from mfmap.export.write import Trajectory
+    from mfmap.export.write import FloorTrajectory
     from mfmap.graph.optimize import GraphResult
     from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
@@ -49,7 +49,7 @@ def accumulate(
     cfg: MfmapConfig,
     progress: Progress,
     pool: Executor | None = None,
-) -> tuple[Trajectory, MapAccumulator]:
+) -> tuple[FloorTrajectory, MapAccumulator]:
     """Each floor's cloud and grid from every scan at its optimised pose (or the keyframes).
 
     With `cfg.export.workers` > 1 the floors are shared out over processes: those of `pool` when
@@ -95,7 +95,7 @@ def accumulate(
 
 
 def add_depth_cameras(src: LogSource, cameras: list[Camera], seg: FloorSegmentation,
-                      trajectory: Trajectory, maps: MapAccumulator, cfg: MfmapConfig,
+                      trajectory: FloorTrajectory, maps: MapAccumulator, cfg: MfmapConfig,
                       colour: Sequence[ColourCamera] = ()) -> dict[str, int]:
     """The depth cameras' images into the floor maps (images used per depth topic), then the
     colour cameras' paint on the clouds, left out where the lidar scans are: rides, stair walks
@@ -134,7 +134,7 @@ class _MapsJob:
     path: Path  # the log, re-opened by a worker
     cfg: MfmapConfig
     planar: bool
-    trajectory: Trajectory
+    trajectory: FloorTrajectory
     used: dict[int, int]  # stamp -> trajectory index of the scans to use
     shafts: list[CabinBox]
     extrinsics: Extrinsics
@@ -177,7 +177,7 @@ def _maps_worker(job: _MapsJob) -> MapAccumulator:
         return _accumulate_scans(src, job, bar)
 
 
-def _floor_groups(used: dict[int, int], trajectory: Trajectory, workers: int) -> list[set[int]]:
+def _floor_groups(used: dict[int, int], trajectory: FloorTrajectory, workers: int) -> list[set[int]]:
     """Floors in at most `workers` groups of about equal scan counts (largest first, greedy)."""
     counts: dict[int, int] = {}
     for i in used.values():
@@ -189,7 +189,7 @@ def _floor_groups(used: dict[int, int], trajectory: Trajectory, workers: int) ->
     return [g for _, g in sorted(groups, key=lambda ng: (-ng[0], min(ng[1], default=0))) if g]
 
 
-def _used_scans(seg: FloorSegmentation, trajectory: Trajectory, cabins: list[CabinBox],
+def _used_scans(seg: FloorSegmentation, trajectory: FloorTrajectory, cabins: list[CabinBox],
                 cfg: MfmapConfig) -> dict[int, int]:
     """Stamp -> trajectory index of the scans the maps use, decided from the poses alone.
 
@@ -214,7 +214,7 @@ def _used_scans(seg: FloorSegmentation, trajectory: Trajectory, cabins: list[Cab
     return used
 
 
-def _scans_of(src: LogSource, planar: bool, trajectory: Trajectory, used: dict[int, int],
+def _scans_of(src: LogSource, planar: bool, trajectory: FloorTrajectory, used: dict[int, int],
               max_skip: int = 20) -> Iterator[tuple[int, str, np.ndarray, np.ndarray | None]]:
     """The log's scans in windows around the used ones (runs of skipped scans are not decoded)."""
     idx = sorted(used.values())
@@ -241,7 +241,7 @@ def _near_transition(stamp_ns: int, spans: list[tuple[int, int]]) -> bool:
     return any(lo <= stamp_ns <= hi for lo, hi in spans)
 
 
-def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: Trajectory, i: int,
+def _deskew(points_base: F64, t_offset_ns: np.ndarray, trajectory: FloorTrajectory, i: int,
             max_gap_ns: int = 250_000_000) -> F64:
     """Points measured at stamp + t_offset, expressed in the base frame at the scan's stamp.
 

@@ -31,7 +31,9 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass
-class Trajectory:
+class FloorTrajectory:
+    """The optimised pose of every scan, with the floor of its keyframe."""
+
     stamps_ns: np.ndarray  # (N,) int64
     poses: np.ndarray  # (N, 4, 4)
     floor: np.ndarray  # (N,) int32, the keyframe's floor
@@ -48,7 +50,7 @@ class ExportSummary:
 
 def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
                          rides: Sequence[tuple[int, int]] = (),
-                         walks: Sequence[tuple[int, int]] = ()) -> Trajectory:
+                         walks: Sequence[tuple[int, int]] = ()) -> FloorTrajectory:
     """Base pose at every lidar scan: optimised keyframe pose * ScanPose.relative.
 
     `rides` are elevator rides and `walks` stair walks (start_ns, end_ns). Their scans hang off
@@ -63,7 +65,7 @@ def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
     floor_of = {k.id: k.floor_id for k in mapping.keyframes}
     items = sorted((sp for sp in mapping.scan_poses if sp.keyframe in poses), key=lambda s: s.stamp_ns)
     if not items:
-        return Trajectory(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros(0, np.int32))
+        return FloorTrajectory(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros(0, np.int32))
     stamps = np.array([sp.stamp_ns for sp in items], dtype=np.int64)
     out = np.stack([poses[sp.keyframe] @ sp.relative for sp in items])
     floor = np.array([floor_of.get(sp.keyframe, -1) for sp in items], dtype=np.int32)
@@ -71,7 +73,7 @@ def optimised_trajectory(mapping: MappingResult, poses: dict[int, F64],
         _between_ride_ends(stamps, out, start_ns, end_ns)
     for start_ns, end_ns in walks:
         _spread_walk_jump(stamps, out, floor, start_ns, end_ns)
-    return Trajectory(stamps, out, floor)
+    return FloorTrajectory(stamps, out, floor)
 
 
 def _slerp(r0: np.ndarray, r1: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -140,7 +142,7 @@ def cabin_json(cabin: Cabin) -> dict[str, Any]:
 
 def write_building(folder: Path, title: str, floors_doc: dict[str, Any], clouds: dict[int, np.ndarray],
                    grids: dict[int, OccupancyGrid], elevation: dict[int, float],
-                   cabins: Sequence[Cabin], trajectory: Trajectory) -> list[str]:
+                   cabins: Sequence[Cabin], trajectory: FloorTrajectory) -> list[str]:
     """map.mcap and its Foxglove layout, building.yaml, floors/index.yaml; their warnings."""
     floors = [FloorMap(f, elevation.get(f, 0.0), clouds[f], grids.get(f)) for f in sorted(clouds)]
     with atomic_open(folder / "map.mcap", "wb") as f:
@@ -162,7 +164,7 @@ def write_outputs(
     seg: FloorSegmentation,
     mapping: MappingResult,
     graph: GraphResult,
-    trajectory: Trajectory,
+    trajectory: FloorTrajectory,
     maps: MapAccumulator,
     report: BuildReport,
     config_yaml: str,
@@ -233,7 +235,7 @@ def _pressure_figure(seg: FloorSegmentation) -> bytes | None:
 
 
 def _write_floors(folder: Path, maps: MapAccumulator, clouds: dict[int, np.ndarray],
-                  colours: dict[int, np.ndarray | None], trajectory: Trajectory,
+                  colours: dict[int, np.ndarray | None], trajectory: FloorTrajectory,
                   summary: ExportSummary) -> tuple[dict[int, OccupancyGrid], dict[int, bytes]]:
     """floors/<id>/cloud.ply and the grid files; the grids and their PNGs (for report.html)."""
     grid_pngs: dict[int, bytes] = {}

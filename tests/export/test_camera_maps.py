@@ -10,7 +10,7 @@ from mfmap.export.camera import pose_at
 from mfmap.export.config import CloudConfig, ExportConfig
 from mfmap.export.files import ply_bytes, read_ply, write_ply
 from mfmap.export.mapdata import MapAccumulator
-from mfmap.export.write import Trajectory
+from mfmap.export.write import FloorTrajectory
 
 
 def _yaw_pose(x: float, yaw: float) -> np.ndarray:
@@ -22,7 +22,7 @@ def _yaw_pose(x: float, yaw: float) -> np.ndarray:
 
 
 def test_pose_at_interpolates_between_scans_of_one_floor() -> None:
-    traj = Trajectory(np.array([0, 100_000_000, 900_000_000, 1_000_000_000], dtype=np.int64),
+    traj = FloorTrajectory(np.array([0, 100_000_000, 900_000_000, 1_000_000_000], dtype=np.int64),
                       np.stack([_yaw_pose(0.0, 0.0), _yaw_pose(1.0, 0.4), _yaw_pose(2.0, 0.0),
                                 _yaw_pose(3.0, 0.0)]),
                       np.array([0, 0, 0, 1], dtype=np.int32))

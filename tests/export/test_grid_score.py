@@ -11,7 +11,7 @@ import yaml
 
 from mfmap.errors import GroundTruthError
 from mfmap.eval.grids import LoadedGrid, floor_viewpoints, score_build, score_grid, visible_cells
-from mfmap.eval.io import Trajectory, write_ply
+from mfmap.eval.io import TumTrajectory, write_ply
 from mfmap.export.grid import OccupancyGrid
 
 SIZE = 40  # cells; rows = y, cols = x
@@ -92,7 +92,7 @@ def test_viewpoints_follow_the_visits_and_skip_the_shaft() -> None:
     x_m = 0.125 * np.arange(41)  # 0 .. 5 m, exact in binary
     stamps_s = 0.1 * np.arange(41, dtype=np.float64)
     xyz = np.column_stack([x_m, np.zeros(41), np.zeros(41)]).astype(np.float64)
-    path = Trajectory(stamps_s, xyz, np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (41, 1)))
+    path = TumTrajectory(stamps_s, xyz, np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (41, 1)))
     floor = {"id": 0, "visits": [[0.0, 2.0]]}  # stamps 0 .. 2 s: x 0 .. 2.5 m
     assert floor_viewpoints(path, floor, [], spacing_m=0.25)[:, 0].tolist() == [0.25 * i for i in range(11)]
     ride = {"kind": "elevator", "from": 0, "to": 1, "x": 0.0, "y": 0.0}

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from mfmap.export.scans import _deskew, _floor_groups
-from mfmap.export.write import Trajectory
+from mfmap.export.write import FloorTrajectory
 from mfmap.graph.gravity import gravity_at_keyframes
 from mfmap.mapping.cabin import CabinBox, drop_cabins, in_cabin
 from mfmap.pipeline import single_floor
@@ -126,7 +126,7 @@ def _interpolated(p0: np.ndarray, p1: np.ndarray, frac: float) -> np.ndarray:
 def test_deskew_puts_a_moving_sweep_back_on_the_wall() -> None:
     # 1 m/s forward and 0.5 rad/s of yaw, scans every 0.1 s; a wall 5 m ahead, x = 5.
     poses = np.stack([pose_xyyaw(0.1 * k, 0.0, 0.0, 0.05 * k) for k in range(3)])
-    traj = Trajectory(np.arange(3, dtype=np.int64) * 100_000_000, poses, np.zeros(3, np.int32))
+    traj = FloorTrajectory(np.arange(3, dtype=np.int64) * 100_000_000, poses, np.zeros(3, np.int32))
     offsets = np.linspace(0, 99_000_000, 200).astype(np.int64)
     wall = np.column_stack([np.full(200, 5.0), np.linspace(-2.0, 2.0, 200), np.full(200, 1.0)])
     # What the lidar measures: each point in the base frame at its own firing time.
@@ -142,13 +142,13 @@ def test_deskew_puts_a_moving_sweep_back_on_the_wall() -> None:
     measured_last = (wall - poses[2][:3, 3]) @ poses[2][:3, :3]
     assert np.allclose(_deskew(measured_last, np.zeros(200, np.int64), traj, 2), measured_last)
     # Across a gap (another floor, or a pause in the log) nothing is interpolated.
-    split = Trajectory(traj.stamps_ns, poses, np.array([0, 1, 2], np.int32))
+    split = FloorTrajectory(traj.stamps_ns, poses, np.array([0, 1, 2], np.int32))
     assert _deskew(measured, offsets, split, 0) is measured
 
 
 def test_floor_groups_balance_scans() -> None:
     floors = np.array([0] * 50 + [1] * 30 + [2] * 25, dtype=np.int32)
-    traj = Trajectory(np.arange(105, dtype=np.int64), np.tile(np.eye(4), (105, 1, 1)), floors)
+    traj = FloorTrajectory(np.arange(105, dtype=np.int64), np.tile(np.eye(4), (105, 1, 1)), floors)
     used = {i: i for i in range(105)}
     assert _floor_groups(used, traj, 2) == [{1, 2}, {0}]
     assert _floor_groups(used, traj, 1) == [{0, 1, 2}]
