@@ -68,7 +68,7 @@ def _start_build(log: Path, out: Path) -> tuple[subprocess.Popen[str], set[int]]
         if len(kids) >= 3 and started is None:
             started = time.monotonic()
         if started is not None and time.monotonic() - started > 6.0:
-            assert list(out.parent.glob(f"{out.name}.partial-*"))
+            assert list(out.parent.glob(f"{out.name}.partial-*")), "the build ended before the signal"
             return proc, kids
         time.sleep(0.2)
     proc.kill()
@@ -89,10 +89,17 @@ def _left_after(proc: subprocess.Popen[str], kids: set[int], sig: int,
     return left
 
 
+def _long_log(sim_run: Callable[..., Path]) -> Path:
+    """The tiny building toured three times (a 19 s build on an idle 2-core machine, where the
+    single tour's finishes about 6 s after its workers start): the signal must find it
+    mapping in its workers, not renaming its finished folder."""
+    return sim_run("tiny", duration_scale=3.0) / "log.mcap"
+
+
 @pytest.mark.slow
 def test_sigterm_stops_the_build_and_its_workers(sim_run: Callable[..., Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
-    proc, kids = _start_build(sim_run("tiny") / "log.mcap", out)
+    proc, kids = _start_build(_long_log(sim_run), out)
     assert _left_after(proc, kids, signal.SIGTERM) == set()
     _, stderr = proc.communicate(timeout=10)
     assert proc.returncode == 128 + signal.SIGTERM
@@ -103,7 +110,7 @@ def test_sigterm_stops_the_build_and_its_workers(sim_run: Callable[..., Path], t
 @pytest.mark.slow
 def test_sigkill_takes_the_workers_along(sim_run: Callable[..., Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
-    proc, kids = _start_build(sim_run("tiny") / "log.mcap", out)
+    proc, kids = _start_build(_long_log(sim_run), out)
     assert _left_after(proc, kids, signal.SIGKILL) == set()
     proc.wait(timeout=10)
     # What the killed build left is mfmap's, and the next build's start removes it.
