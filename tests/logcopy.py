@@ -8,8 +8,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def copy_log(src: Path, dst: Path, drop_topics: set[str], end_s: float | None = None) -> None:
-    """Copy an MCAP log without some topics (and optionally only its first seconds)."""
+def copy_log(src: Path, dst: Path, drop_topics: set[str], end_s: float | None = None,
+             drop_prefix: str | None = None) -> None:
+    """Copy an MCAP log without some topics (and those under `drop_prefix`), and optionally
+    only its first seconds."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -24,7 +26,7 @@ def copy_log(src: Path, dst: Path, drop_topics: set[str], end_s: float | None = 
             first = message.log_time if first is None else first
             if end_s is not None and message.log_time - first > end_s * 1e9:
                 break
-            if channel.topic in drop_topics:
+            if channel.topic in drop_topics or (drop_prefix and channel.topic.startswith(drop_prefix)):
                 continue
             if schema is not None and schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)

@@ -13,6 +13,7 @@ import numpy as np
 
 from mfmap.export.lidar_colour import project_visible
 from mfmap.ingest.depth import CameraModel
+from tests.logcopy import copy_log
 
 MODEL = CameraModel("cam", 80, 60, np.array([[40.0, 0, 39.5], [0, 40.0, 29.5], [0, 0, 1]]), np.zeros(5),
                     "plumb_bob")
@@ -50,29 +51,6 @@ def test_a_board_hides_the_wall_behind_it() -> None:
     np.testing.assert_allclose(z, points[idx, 2])
 
 
-def _drop_topics(src: Path, dst: Path, prefix: str) -> None:
-    """The log without the topics under `prefix`, rewritten by mcap's Writer."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    with src.open("rb") as fin, dst.open("wb") as fout:
-        reader = make_reader(fin)
-        writer = Writer(fout)
-        writer.start(profile="ros2", library="test")
-        schemas: dict[int, int] = {}
-        channels: dict[str, int] = {}
-        for schema, channel, message in reader.iter_messages():
-            if channel.topic.startswith(prefix):
-                continue
-            if schema is not None and schema.id not in schemas:
-                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.topic not in channels:
-                channels[channel.topic] = writer.register_channel(
-                    channel.topic, channel.message_encoding, schemas.get(channel.schema_id, 0), channel.metadata)
-            writer.add_message(channels[channel.topic], message.log_time, message.data, message.publish_time)
-        writer.finish()
-
-
 def painted_figures(ply: dict[str, Any], seed: int = 0) -> dict[str, float]:
     """Share of points painted (not grey) and, of those, the share within 40 levels (every
     channel) of the paint of the true surface nearest to them."""
@@ -101,7 +79,7 @@ def test_lidar_points_carry_their_surfaces_colours(sim_run: Callable[..., Path],
     from mfmap.export.files import read_ply
 
     log = tmp_path / "log.mcap"
-    _drop_topics(sim_run("tiny-rgbd") / "log.mcap", log, "/camera/depth/")
+    copy_log(sim_run("tiny-rgbd") / "log.mcap", log, set(), drop_prefix="/camera/depth/")
     from mfmap.ingest.camera_info import describe_cameras
 
     rows, skipped = describe_cameras(log)
