@@ -309,6 +309,7 @@ def segment_floors(
     src: LogSource, cfg: MfmapConfig
 ) -> tuple[PressureSeries | None, FloorSegmentation]:
     """Barometer -> floors; a log without barometer becomes one floor, with a warning (logged)."""
+    from mfmap.floors.imu import ImuTiming
     from mfmap.floors.motion import motion_from_imu, motion_from_odometry
     from mfmap.floors.segment import segment_pressure
 
@@ -336,7 +337,7 @@ def segment_floors(
         motion = motion_from_odometry(odom, cfg.floors)
     elif imu is not None and len(imu) > 1:
         motion = motion_from_imu(imu, cfg.floors)
-    return pressure, segment_pressure(pressure, motion, cfg.floors)
+    return pressure, segment_pressure(pressure, motion, cfg.floors, ImuTiming.of(imu))
 
 
 def check_lidar_density(src: LogSource, cfg: MappingConfig, scans: int = 20) -> None:

@@ -42,6 +42,11 @@ BLOCKS_S = (1.0, 4.0, 16.0)
 # Weather moves the barometric height by up to ~120 Pa/h (1 cm per second of apparent height at
 # most); its slope's prior sigma, in metres per second.
 WEATHER_SLOPE_SIGMA_M_S = 0.002
+# The weather's slope is read off the floor visits within this many seconds of a transition (its
+# curvature, tens of Pa/h per hour, bends it little over a quarter of an hour) ...
+WEATHER_SPAN_S = 900.0
+# ... and trusted no better than this (m/s): a floor's own wander over a visit is slope too.
+WEATHER_SLOPE_FLOOR_M_S = 0.0005
 
 
 @dataclass(frozen=True)
@@ -86,12 +91,61 @@ def level_change(
     def sec(ns: int) -> float:
         return (ns - int(stamp[0])) / 1e9
 
-    tr = seg.transitions[index]
-    lo = sec(seg.transitions[index - 1].end_ns) if index > 0 else float(trace.times_s[0])
-    hi = (sec(seg.transitions[index + 1].start_ns) if index + 1 < len(seg.transitions)
-          else float(trace.times_s[-1]))
-    return fit_level_change(trace, (sec(tr.start_ns), sec(tr.end_ns)), (lo, hi), window_s, gap_s,
-                            step_m)
+    spans = [(sec(t.start_ns), sec(t.end_ns)) for t in seg.transitions]
+    visits = visits_between(trace, spans)
+    return fit_level_change(trace, spans[index], (visits[index][0], visits[index + 1][1]), window_s,
+                            gap_s, step_m, weather_slope(trace, visits, spans[index], gap_s, step_m))
+
+
+def visits_between(trace: RawTrace, transitions_s: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The floor visits (start, end) around transitions given as (start, end) in the trace's
+    seconds: one more than the transitions."""
+    edges = [float(trace.times_s[0])] + [x for pair in transitions_s for x in pair] + [float(trace.times_s[-1])]
+    return [(edges[2 * k], edges[2 * k + 1]) for k in range(len(transitions_s) + 1)]
+
+
+def weather_slope(
+    trace: RawTrace,
+    visits_s: list[tuple[float, float]],
+    transition_s: tuple[float, float],
+    gap_s: float = 1.0,
+    step_m: float = 0.25,
+) -> tuple[float, float]:
+    """The weather's slope of the barometric height around a transition (m/s) and its sigma:
+    one fit over every floor visit within WEATHER_SPAN_S of it, a level per visit and a shared
+    slope, door and HVAC steps left out as in the transition's own fit.
+
+    The transition's own fit sees only the floor either side, trimmed to the same length: after
+    a long stair walk half a minute on the floor reached can be all it has, and the stairwell's
+    air leaving the robot over those seconds looks like weather. Extrapolated across two minutes
+    of stairs, 3 cm/s of such slope moved a 6.6 m descent by 2.1 m (a simulated building, a
+    return to the start floor taken for a new floor). The visits around it, minutes of floor,
+    know the weather better; the prior of WEATHER_SLOPE_SIGMA_M_S is kept when they are short.
+    """
+    mid = 0.5 * (transition_s[0] + transition_s[1])
+    t, med, dt = trace.times_s, trace.median_m, trace.dt_s
+    cols: list[npt.NDArray[np.bool_]] = []
+    for lo, hi in visits_s:
+        lo, hi = max(lo + gap_s, mid - WEATHER_SPAN_S), min(hi - gap_s, mid + WEATHER_SPAN_S)
+        if hi - lo >= 2 * MIN_SIDE_S:
+            cols.append((t >= lo) & (t <= hi))
+    if not cols:
+        return 0.0, WEATHER_SLOPE_SIGMA_M_S
+    used = np.logical_or.reduce(cols)
+    levels = np.stack([c[used] for c in cols], axis=1).astype(np.float64)
+    design = np.concatenate([levels, (t[used] - mid)[:, None]], axis=1)
+    y = med[used]
+    start = np.array([robust_level(y[levels[:, k] > 0]) for k in range(len(cols))] + [0.0])
+    keep = ~_robust_outliers(design, y, start, dt, step_m)
+    if np.count_nonzero(keep) < 20:
+        return 0.0, WEATHER_SLOPE_SIGMA_M_S
+    a, z = design[keep], trace.height_m[used][keep]
+    var = _noise_variance(z - a @ _weighted_lstsq(a, z, np.ones(z.shape[0])), dt)
+    info = a.T @ a / max(var, 1e-12)
+    info[-1, -1] += WEATHER_SLOPE_SIGMA_M_S**-2
+    cov = np.linalg.inv(info)
+    slope = float((cov @ (a.T @ z) / max(var, 1e-12))[-1])
+    return slope, max(math.sqrt(float(cov[-1, -1])), WEATHER_SLOPE_FLOOR_M_S)
 
 
 def fit_level_change(
@@ -101,6 +155,7 @@ def fit_level_change(
     window_s: float = 120.0,
     gap_s: float = 1.0,
     step_m: float = 0.25,
+    weather: tuple[float, float] = (0.0, WEATHER_SLOPE_SIGMA_M_S),
 ) -> LevelChange:
     """Height change across a transition (its start and end, `transition_s`, in the trace's
     seconds) from the raw barometer samples on both sides, which lie within `floor_s` (the end
@@ -114,7 +169,8 @@ def fit_level_change(
     residuals over `step_m`) and left out, with a second either side. The fit runs on the raw
     samples, not the floors stage's smoothed trace: its pulse removal leaves centimetres of step
     behind, which a level over a minute still sees. The sigma is the fit's, scaled up when the
-    residuals are correlated over a second (a phone's barometer wanders).
+    residuals are correlated over a second (a phone's barometer wanders). `weather`: the slope's
+    prior, mean and sigma (m/s; `weather_slope` reads it off the visits around).
     """
     t, raw, med, dt = trace.times_s, trace.height_m, trace.median_m, trace.dt_s
     lo, hi = floor_s
@@ -141,9 +197,9 @@ def fit_level_change(
     # wander on one side (gusts correlated over tens of seconds, a zone near a pressurised
     # stairwell) taken for weather moved a 9 m climb by 1.9 m.
     info = a.T @ a / max(var, 1e-12)
-    info[2, 2] += WEATHER_SLOPE_SIGMA_M_S**-2
+    info[2, 2] += weather[1] ** -2
     cov = np.linalg.inv(info)
-    x = cov @ (a.T @ z) / max(var, 1e-12)
+    x = cov @ (a.T @ z / max(var, 1e-12) + np.array([0.0, 0.0, weather[0] / weather[1] ** 2]))
     sigma = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
     return LevelChange(float(x[1] - x[0]), sigma, side, float(step.mean()), "ok")
 
@@ -152,7 +208,13 @@ def _steps(design: F64, y: F64, sides: tuple[F64, F64], dt: float, step_m: float
     """Door and HVAC steps in the running median `y`: a robust (Tukey) fit of the model, then
     every sample further than `step_m` from it, with a second either side. `sides`: the running
     median before and after, for the fit's start."""
-    x = np.array([robust_level(sides[0]), robust_level(sides[1]), 0.0])
+    return _robust_outliers(design, y, np.array([robust_level(sides[0]), robust_level(sides[1]), 0.0]), dt,
+                            step_m)
+
+
+def _robust_outliers(design: F64, y: F64, x: F64, dt: float, step_m: float) -> npt.NDArray[np.bool_]:
+    """Samples of `y` further than `step_m` from a robust (Tukey) fit of `design` started at `x`,
+    with a second either side."""
     for _ in range(20):
         r = y - design @ x
         c = 4.685 * max(MAD_TO_SIGMA * float(np.median(np.abs(r))), 0.02)

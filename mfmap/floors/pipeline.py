@@ -11,6 +11,7 @@ import numpy as np
 
 from mfmap.config import MfmapConfig
 from mfmap.errors import LogError
+from mfmap.floors.imu import ImuTiming
 from mfmap.floors.io import read_pressure_csv
 from mfmap.floors.motion import MotionEvidence, motion_from_imu, motion_from_odometry
 from mfmap.floors.segment import segment_pressure
@@ -42,14 +43,13 @@ def segment_path(path: Path, cfg: MfmapConfig) -> FloorSegmentation:
         pressure = src.pressure()
         motion: MotionEvidence | None = None
         odom = src.odometry()
+        imu = src.imu()
         if odom is not None and len(odom) > 1:
             motion = motion_from_odometry(odom, cfg.floors)
-        else:
-            imu = src.imu()
-            if imu is not None and len(imu) > 1:
-                motion = motion_from_imu(imu, cfg.floors)
+        elif imu is not None and len(imu) > 1:
+            motion = motion_from_imu(imu, cfg.floors)
         warnings = list(src.warnings) + [n.removeprefix("floors: ") for n in notes.lines()]
-    seg = segment_pressure(pressure, motion, cfg.floors)
+    seg = segment_pressure(pressure, motion, cfg.floors, ImuTiming.of(imu))
     if motion is None:
         warnings.append("no odometry or IMU: transition kinds are unknown")
     return dataclasses.replace(seg, warnings=tuple(warnings) + seg.warnings)

@@ -29,7 +29,8 @@ from mfmap.baro import height_from_pressure
 from mfmap.errors import MissingDataError
 from mfmap.floors.config import FloorsConfig
 from mfmap.floors.filters import Grid, resample_uniform
-from mfmap.floors.levels import fit_level_change, trace_of_grid
+from mfmap.floors.imu import ImuTiming
+from mfmap.floors.levels import fit_level_change, trace_of_grid, visits_between, weather_slope
 from mfmap.floors.motion import MotionEvidence
 from mfmap.floors.runs import Run, run_kind
 from mfmap.floors.timing import stairs_from_standstill
@@ -131,11 +132,11 @@ def _fitted_changes(grid: Grid, bounds: list[tuple[int, int]], changes: list[flo
     """
     trace = trace_of_grid(grid)
     secs = [((a - start_ns) / 1e9, (b - start_ns) / 1e9) for a, b in bounds]
-    ends = [float(grid.times_s[0])] + [b for _, b in secs]
-    starts = [a for a, _ in secs] + [float(grid.times_s[-1])]
+    visits = visits_between(trace, secs)
     out = []
     for k, change in enumerate(changes):
-        fit = fit_level_change(trace, secs[k], (ends[k], starts[k + 1]), window_s)
+        fit = fit_level_change(trace, secs[k], (visits[k][0], visits[k + 1][1]), window_s,
+                               weather=weather_slope(trace, visits, secs[k]))
         out.append(change if fit.height_change_m is None else fit.height_change_m)
     return out
 
@@ -158,27 +159,24 @@ def _clean_series(pressure: PressureSeries) -> tuple[I64, F64]:
 
 
 def segment_pressure(
-    pressure: PressureSeries, motion: MotionEvidence | None, cfg: FloorsConfig
+    pressure: PressureSeries, motion: MotionEvidence | None, cfg: FloorsConfig,
+    imu: ImuTiming | None = None,
 ) -> FloorSegmentation:
-    """Floors, transitions and the filtered height trace of one barometer series."""
+    """Floors, transitions and the filtered height trace of one barometer series; `imu`,
+    the IMU's vertical acceleration and tilt, times the rides and stair walks."""
     stamp_ns, pressure_pa = _clean_series(pressure)
     warnings: list[str] = []
     t_s = (stamp_ns - stamp_ns[0]).astype(np.float64) / 1e9
     ref_pa = float(np.median(pressure_pa[t_s <= min(1.0, t_s[-1])]))
     height_raw = height_from_pressure(pressure_pa, ref_pa, cfg.temperature_k)
     grid = resample_uniform(t_s, height_raw)
-    gaps = np.diff(t_s) > max(2.0, 20 * grid.dt_s)
-    if np.any(gaps):
-        warnings.append(
-            f"{int(np.count_nonzero(gaps))} gaps in the barometer trace (longest "
-            f"{float(np.max(np.diff(t_s))):.1f} s): heights interpolated across them"
-        )
+    warnings.extend(_gaps(t_s, grid.dt_s))
     trace = filter_height(grid, cfg)
     if trace.spikes > 0.01 * grid.values.shape[0]:
         warnings.append(f"{trace.spikes} barometer spikes rejected ({trace.spikes / len(grid.values):.1%})")
     runs, changes, times, near_misses = find_transitions(trace, cfg, motion, int(stamp_ns[0]))
     warnings.extend(near_misses)
-    bounds, kinds = _bounds(stamp_ns, t_s, runs, times, trace, motion, cfg)
+    bounds, kinds = _bounds(stamp_ns, t_s, runs, times, trace, motion, cfg, imu)
     if cfg.transitions.window_s > 0:
         changes = _fitted_changes(grid, bounds, changes, int(stamp_ns[0]), cfg.transitions.window_s)
     # Revisits are recognised on the fitted changes: the robust lines' are good enough to find
@@ -219,6 +217,14 @@ def segment_pressure(
     )
 
 
+def _gaps(t_s: F64, dt_s: float) -> list[str]:
+    gaps = np.diff(t_s) > max(2.0, 20 * dt_s)
+    if not np.any(gaps):
+        return []
+    return [f"{int(np.count_nonzero(gaps))} gaps in the barometer trace (longest "
+            f"{float(np.max(np.diff(t_s))):.1f} s): heights interpolated across them"]
+
+
 def _bounds(
     stamp_ns: I64,
     t_s: F64,
@@ -227,9 +233,11 @@ def _bounds(
     trace: FilteredTrace,
     motion: MotionEvidence | None,
     cfg: FloorsConfig,
+    imu: ImuTiming | None,
 ) -> tuple[list[tuple[int, int]], list[TransitionKind]]:
     """Each transition's (start, end) stamps and its kind: stairs end at the odometry's
-    standstills, never past the neighbouring transitions or the trace."""
+    standstills, elevator rides where the cabin starts and stops (the IMU), never past the
+    neighbouring transitions or the trace."""
 
     def to_ns(seconds: float) -> int:
         return int(stamp_ns[0] + round(seconds * 1e9))
@@ -240,15 +248,24 @@ def _bounds(
     kinds = [TransitionKind.UNKNOWN if motion is None else run_kind(motion, r, dt_s, int(stamp_ns[0]))
              for r in runs]
     if motion is not None:
-        bounds = [
-            stairs_from_standstill(motion, a, b, cfg) if kind is TransitionKind.STAIRS else (a, b)
-            for kind, (a, b) in zip(kinds, bounds, strict=True)
-        ]
+        bounds = [_timed(kind, (a, b), motion, cfg, imu) for kind, (a, b) in zip(kinds, bounds, strict=True)]
         # Never past the neighbouring transitions or the trace.
         edges = [int(stamp_ns[0])] + [x for pair in bounds for x in pair] + [int(stamp_ns[-1])]
         edges = np.maximum.accumulate(np.array(edges, dtype=np.int64)).tolist()
         bounds = [(edges[2 * k + 1], edges[2 * k + 2]) for k in range(len(bounds))]
     return bounds, kinds
+
+
+def _timed(kind: TransitionKind, bounds: tuple[int, int], motion: MotionEvidence, cfg: FloorsConfig,
+           imu: ImuTiming | None) -> tuple[int, int]:
+    """One transition's (start, end) from the motion evidence where it knows better: the IMU's
+    cabin motion and flights, else the odometry's stand-stills at a stair walk's ends."""
+    if kind is TransitionKind.STAIRS:
+        return (imu.flight_span(*bounds) if imu is not None else None) or stairs_from_standstill(
+            motion, bounds[0], bounds[1], cfg)
+    if kind is TransitionKind.ELEVATOR and imu is not None:
+        return imu.ride_span(*bounds) or bounds
+    return bounds
 
 
 def _floors(

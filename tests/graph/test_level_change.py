@@ -89,3 +89,30 @@ def test_skipped_when_one_side_has_no_floor() -> None:
     fit = level_change(cut, 0)
     assert fit.height_change_m is None
     assert fit.reason == "less than 5 s of floor on one side"
+
+
+def test_the_weather_comes_from_the_visits_around_not_a_transient_after_a_long_walk() -> None:
+    """A two-minute stair walk down 6.6 m followed by half a minute of floor whose first seconds
+    still hold the stairwell's air: the weather's slope is read off the visits around (minutes of
+    floor), within its sigma, and the walk's change is right with it as the prior."""
+    from mfmap.floors.filters import Grid
+    from mfmap.floors.levels import fit_level_change, trace_of_grid, visits_between, weather_slope
+
+    dt = 0.04
+    t = np.arange(0.0, 373.0, dt)
+    rng = np.random.default_rng(0)
+    drift = 0.0025 * t  # weather: falling pressure, 2.5 mm/s of apparent height
+    truth = np.where(t < 93.0, 0.0, np.where(t < 112.0, 6.6 * (t - 93.0) / 19.0, 6.6))
+    truth = np.where(t < 228.0, truth, np.where(t < 342.0, 6.6 - 6.6 * (t - 228.0) / 114.0, 0.0))
+    # The stairwell's air leaves the robot over eight seconds after the walk: 0.6 m of offset.
+    after = t - 342.0
+    transient = np.where((after > 0) & (after < 8.0), -0.6 * (1.0 - after / 8.0), 0.0)
+    height = truth + drift + transient + rng.normal(0.0, 0.15, t.shape)
+    trace = trace_of_grid(Grid(0.0, dt, height))
+    spans = [(93.0, 112.0), (228.0, 342.0)]
+    visits = visits_between(trace, spans)
+    slope, sigma = weather_slope(trace, visits, spans[1])
+    assert abs(slope - 0.0025) < 3 * sigma and sigma < 0.001
+    fit = fit_level_change(trace, spans[1], (visits[1][0], visits[2][1]), weather=(slope, sigma))
+    assert fit.height_change_m is not None
+    assert abs(fit.height_change_m - -6.6) < 0.3
