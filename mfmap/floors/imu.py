@@ -46,6 +46,9 @@ FLIGHT_S = 1.0
 TILT_SMOOTH_S = 0.5
 # The flights are looked for this far outside the barometer's stair walk (s).
 FLIGHT_SEARCH_S = 5.0
+# A walk starts at the foot of the first flight, a moment before the robot tilts on it, and ends
+# a moment after the last (s).
+FLIGHT_PAD_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -116,7 +119,8 @@ class ImuTiming:
         flights = np.flatnonzero(ndimage.binary_opening(self.tilt_deg[lo:hi] > FLIGHT_TILT_DEG, hold))
         if flights.shape[0] == 0:
             return None
-        t0, t1 = int(self.stamp_ns[lo + int(flights[0])]), int(self.stamp_ns[lo + int(flights[-1])])
+        t0 = int(self.stamp_ns[lo + int(flights[0])]) - int(FLIGHT_PAD_S * 1e9)
+        t1 = int(self.stamp_ns[lo + int(flights[-1])]) + int(FLIGHT_PAD_S * 1e9)
         if min(t1, end_ns) - max(t0, start_ns) < MIN_COVER * (end_ns - start_ns):
             return None
         return t0, t1
