@@ -229,7 +229,13 @@ class _Stages:
         if not mapping.keyframes:
             raise MissingDataError("no keyframes: the lidar gave no usable scans", self.log)
         if floors.pressure is None:
-            climb = lidar_floor_change(mapping.keyframes, self.cfg.floors.min_floor_height_m)
+            # Per visit: with floors from the IMU's rides, a climb within one is a flight of
+            # stairs the IMU cannot see.
+            visits = sorted({k.visit for k in mapping.keyframes})
+            climbs = (lidar_floor_change([k for k in mapping.keyframes if k.visit == v],
+                                         self.cfg.floors.min_floor_height_m,
+                                         min(k.stamp_ns for k in mapping.keyframes)) for v in visits)
+            climb = next((c for c in climbs if c is not None), None)
             if climb is not None:
                 raise MissingDataError(
                     f"no barometer in the log, but the lidar odometry {climb}: the robot changed "
@@ -308,7 +314,8 @@ class _Stages:
 def segment_floors(
     src: LogSource, cfg: MfmapConfig
 ) -> tuple[PressureSeries | None, FloorSegmentation]:
-    """Barometer -> floors; a log without barometer becomes one floor, with a warning (logged)."""
+    """Barometer -> floors. A log without barometer: floors from the IMU's elevator rides, or one
+    floor when it feels none; with a warning (logged) either way."""
     from mfmap.floors.imu import ImuTiming
     from mfmap.floors.motion import motion_from_imu, motion_from_odometry
     from mfmap.floors.segment import segment_pressure
@@ -321,13 +328,14 @@ def segment_floors(
         # Inside a closed cabin the lidar cannot see a ride; the accelerometer can.
         rides = find_rides(src.imu(), cfg.floors.min_floor_height_m)
         if rides:
-            ride = rides[0]
-            raise MissingDataError(
-                f"no barometer in the log, but the IMU feels {len(rides)} elevator ride(s), the first "
-                f"{ride.height_change_m:+.1f} m at {(ride.start_ns - src.start_ns) / 1e9:.0f} s: the "
-                "robot changed floors, and a multi-floor map needs the barometer (topic role 'baro')",
-                src.path,
-            ) from None
+            from mfmap.floors.rides import segment_rides
+
+            logger.warning(
+                "no barometer in the log: floors from the IMU's %d elevator ride(s) alone; a floor "
+                "revisited is recognised by the rides' heights only, and a floor reached by stairs "
+                "is not found", len(rides), extra={"stage": ""})
+            return None, segment_rides([(r.start_ns, r.end_ns, float(r.height_change_m or 0.0)) for r in rides],
+                                       src.start_ns, src.end_ns, cfg.floors)
         logger.warning("no barometer in the log: building a single-floor map", extra={"stage": ""})
         return None, single_floor(src.start_ns, src.end_ns)
     odom = src.odometry()
@@ -371,7 +379,8 @@ def check_lidar_density(src: LogSource, cfg: MappingConfig, scans: int = 20) -> 
             "sets the limit", src.path)
 
 
-def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float) -> str | None:
+def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float,
+                       start_ns: int | None = None) -> str | None:
     """What the lidar odometry says about a change of floor in a log without barometer.
 
     Without a barometer the log is mapped as one floor, which is only right when the robot stayed
@@ -387,8 +396,9 @@ def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float)
         return None
     first, last = sorted((lo, hi))
     verb = "climbs" if z[last] > z[first] else "descends"
-    t0_s = (kfs[first].stamp_ns - kfs[0].stamp_ns) / 1e9
-    t1_s = (kfs[last].stamp_ns - kfs[0].stamp_ns) / 1e9
+    origin = kfs[0].stamp_ns if start_ns is None else start_ns
+    t0_s = (kfs[first].stamp_ns - origin) / 1e9
+    t1_s = (kfs[last].stamp_ns - origin) / 1e9
     return f"{verb} {abs(z[last] - z[first]):.1f} m between {t0_s:.0f} s and {t1_s:.0f} s"
 
 
@@ -423,12 +433,17 @@ def optimise(
 
     gravity = gravity_at_keyframes(imu, mapping.keyframes, extrinsics,
                                    odom=odom if cfg.graph.gravity.minus_odometry else None)
+    graph_cfg = cfg.graph
+    if pressure is None and seg.transitions:
+        # Floors from the IMU's rides: their heights are the rides', not a barometer's to fit.
+        graph_cfg = graph_cfg.model_copy(update={
+            "ablation": graph_cfg.ablation.model_copy(update={"transition_height": False})})
     return optimize_building(
         mapping.keyframes,
         mapping.edges,
-        seg if pressure is not None else None,
+        seg if pressure is not None or seg.transitions else None,
         pressure,
-        cfg.graph,
+        graph_cfg,
         temperature_k=cfg.floors.temperature_k,
         gravity_body=gravity,
         progress=progress,

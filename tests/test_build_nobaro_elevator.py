@@ -1,4 +1,4 @@
-"""A log without barometer in which the robot rides an elevator must not become a one-floor map."""
+"""A log without barometer in which the robot rides an elevator: floors from the IMU's rides."""
 
 from __future__ import annotations
 
@@ -10,20 +10,28 @@ import pytest
 
 from mfmap import pipeline
 from mfmap.config import MfmapConfig
-from mfmap.errors import MissingDataError
+from mfmap.eval.api import evaluate
 from mfmap.graph.ride import find_rides
 from mfmap.ingest import open_log
 from tests.logcopy import copy_log
 
 
-def test_elevator_ride_without_barometer_fails_clearly(sim_run: Callable[..., Path], tmp_path: Path) -> None:
+def test_elevator_ride_without_barometer_builds_floors_from_the_imu(
+        sim_run: Callable[..., Path], tmp_path: Path) -> None:
     tiny = sim_run("tiny")
     log = tmp_path / "nobaro.mcap"
     copy_log(tiny / "log.mcap", log, {"/baro/pressure"})
     out = tmp_path / "out"
-    with pytest.raises(MissingDataError, match=r"no barometer .* IMU feels 1 elevator ride\(s\), the first \+3\.5 m"):
-        pipeline.build(log, out, MfmapConfig())
-    assert not out.exists()
+    pipeline.build(log, out, MfmapConfig())
+    report = json.loads((out / "report.json").read_text())
+    assert any("no barometer in the log: floors from the IMU's 1 elevator ride(s)" in w
+               for w in report["warnings"])
+    scores = evaluate(out, points=tiny / "gt_points.csv", floors=tiny / "gt_floors.json").metrics
+    assert scores["floors.count_correct"] == 1.0
+    assert scores["floors.time_correct_share"] > 0.99
+    # The ride's height is the IMU's: within 2 cm of the truth's 3.5 m.
+    assert scores["floors.floor1.elevation_error_m"] < 0.02
+    assert scores["points.floor1.rmse_m"] < 0.05
 
 
 def test_find_rides_measures_each_ride(sim_run: Callable[..., Path]) -> None:

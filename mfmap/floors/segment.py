@@ -51,7 +51,7 @@ logger = logging.getLogger(__name__)
 MIN_SAMPLES = 10
 
 
-def _cluster_visits(changes: list[float], tolerance_m: float) -> list[int]:
+def cluster_visits(changes: list[float], tolerance_m: float) -> list[int]:
     """Cluster label per visit: chain each transition's change from the current floor's estimate.
 
     Chaining from the floor's running estimate (not from the previous chained value) keeps
@@ -75,10 +75,10 @@ def _cluster_visits(changes: list[float], tolerance_m: float) -> list[int]:
             labels.append(len(sums))
             sums.append(estimate)
             counts.append(1)
-    return _merge_clusters(labels, changes, tolerance_m)
+    return merge_clusters(labels, changes, tolerance_m)
 
 
-def _merge_clusters(labels: list[int], changes: list[float], tolerance_m: float) -> list[int]:
+def merge_clusters(labels: list[int], changes: list[float], tolerance_m: float) -> list[int]:
     """Floors the chain made twice: two labels whose least-squares elevations (every transition
     weighed) are within the tolerance, and that no transition joins (a floor change is at
     least a floor), are one floor. The chain decides each revisit from the floor it left alone,
@@ -86,7 +86,7 @@ def _merge_clusters(labels: list[int], changes: list[float], tolerance_m: float)
     past the tolerance; the elevations of all transitions together place it again."""
     labels = list(labels)
     while max(labels) > 0:
-        elevations = _solve_elevations(labels, changes)
+        elevations = solve_elevations(labels, changes)
         joined = {frozenset(p) for p in itertools.pairwise(labels)}
         pairs = [
             (abs(float(elevations[a] - elevations[b])), a, b)
@@ -104,7 +104,7 @@ def _merge_clusters(labels: list[int], changes: list[float], tolerance_m: float)
     return labels
 
 
-def _solve_elevations(labels: list[int], changes: list[float]) -> F64:
+def solve_elevations(labels: list[int], changes: list[float]) -> F64:
     """Least-squares floor elevations from every transition's change, start floor fixed at 0."""
     n_floors = max(labels) + 1
     if n_floors == 1:
@@ -183,8 +183,8 @@ def segment_pressure(
     # the transitions, but a stairwell's own pressure held over the approach to the flight can
     # put one 0.6 m off where the fit is 0.35 m off (a simulated building with harsh air going
     # 0 -> 2 -> 0, against a cluster tolerance of 1 m).
-    labels = _cluster_visits(changes, cfg.cluster_tolerance_m)
-    elevations = _solve_elevations(labels, changes)
+    labels = cluster_visits(changes, cfg.cluster_tolerance_m)
+    elevations = solve_elevations(labels, changes)
     # Ids from 0 = lowest; elevations relative to the start floor (label 0, solved as 0).
     order = np.argsort(elevations, kind="stable")
     id_of_label = np.empty_like(order)

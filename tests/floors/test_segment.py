@@ -9,7 +9,7 @@ import pytest
 from mfmap.errors import MissingDataError
 from mfmap.floors.config import FilterConfig, FloorsConfig
 from mfmap.floors.motion import MotionEvidence
-from mfmap.floors.segment import _cluster_visits, segment_pressure
+from mfmap.floors.segment import cluster_visits, segment_pressure
 from mfmap.sim.traces import Leg, SyntheticTrace, building_walk, synthetic_trace
 from mfmap.types import FloorSegmentation, PressureSeries, TransitionKind
 
@@ -181,7 +181,7 @@ def test_a_revisit_the_chain_misses_is_placed_by_all_transitions() -> None:
     """0 -> 1 -> 2 -> back to 0 (read -7.1 m: 1.1 m from floor 0, past the 1 m tolerance, a new
     floor for the chain) -> 1 (+3.5 m). The loop's least squares put that floor 0.8 m from floor
     0 and no transition joins the two: one floor."""
-    assert _cluster_visits([3.0, 3.0, -7.1, 3.5], 1.0) == [0, 1, 2, 0, 1]
+    assert cluster_visits([3.0, 3.0, -7.1, 3.5], 1.0) == [0, 1, 2, 0, 1]
 
 
 def test_same_input_same_output(cfg: FloorsConfig) -> None:
