@@ -91,7 +91,10 @@ class JointGraph:
             factor = entry.factor
             if i > 0:
                 own = factor.keys()  # a gtsam KeyVector
-                factor = factor.rekey([key_of(i, k) for k in own])
+                keys = [key_of(i, k) for k in own]
+                # A Python factor cannot be cloned with new keys (its error reads its own).
+                factor = (_renamed(factor, keys) if isinstance(factor, gtsam.CustomFactor)
+                          else factor.rekey(keys))
             self.add(entry.kind, factor)
         dz = float(transform[2, 3])
         result = run.graph.result
@@ -149,6 +152,56 @@ class JointGraph:
         result = optimizer.optimize()
         return (result, int(optimizer.iterations()), float(self.graph.error(self.values)),
                 float(self.graph.error(result)), time.perf_counter() - started)
+
+
+# Step of the numerical Jacobians of a renamed Python factor (radians, metres): its errors are
+# smooth (heights, scale and offsets), central differences are exact to ~1e-12.
+_STEP = 1e-6
+
+
+def _renamed(factor: Any, keys: list[int]) -> Any:
+    """A CustomFactor on `keys` whose error is `factor`'s on its own keys, Jacobians by central
+    differences (the few height factors of rides and stairs)."""
+    own = list(factor.keys())
+
+    def local(values: Any, moved: tuple[int, Any] | None = None) -> Any:
+        out = gtsam.Values()
+        for old, new in zip(own, keys, strict=True):
+            pose = chr(gtsam.Symbol(old).chr()) == "x"
+            value = values.atPose3(new) if pose else values.atDouble(new)
+            if moved is not None and moved[0] == old:
+                value = moved[1]
+            if pose:
+                out.insert(old, value)
+            else:
+                out.insert(old, float(value))
+        return out
+
+    def error(this: Any, values: Any, jacobians: list[np.ndarray] | None) -> np.ndarray:
+        here = local(values)
+        err = np.asarray(factor.unwhitenedError(here), dtype=np.float64)
+        if jacobians is not None:
+            for n, old in enumerate(own):
+                jacobians[n] = _jacobian(factor, values, local, old, keys[n], len(err))
+        return err
+
+    return gtsam.CustomFactor(factor.noiseModel(), keys, error)
+
+
+def _jacobian(factor: Any, values: Any, local: Any, old: int, new: int, rows: int) -> np.ndarray:
+    pose = chr(gtsam.Symbol(old).chr()) == "x"
+    dim = 6 if pose else 1
+    jac = np.zeros((rows, dim))
+    for d in range(dim):
+        step = np.zeros(dim)
+        step[d] = _STEP
+        sides = []
+        for sign in (1.0, -1.0):
+            moved = (values.atPose3(new).retract(sign * step) if pose
+                     else values.atDouble(new) + sign * _STEP)
+            sides.append(np.asarray(factor.unwhitenedError(local(values, (old, moved)))))
+        jac[:, d] = (sides[0] - sides[1]) / (2.0 * _STEP)
+    return jac
 
 
 def _model(config: GraphConfig, sigmas: InterLogSigmas, shares: int) -> Any:

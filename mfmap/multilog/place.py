@@ -146,7 +146,7 @@ def _assign(run: LogRun, match: LogMatch, placement: Placement, tolerance_m: flo
 
 def _refusal(waiting: list[LogRun], last: dict[int, LogMatch]) -> str:
     """One line: which logs, and why each."""
-    parts = [f"{run.name} ({last[run.index].reason})" if run.index in last else run.name
+    parts = [f"{run.path} ({last[run.index].reason})" if run.index in last else str(run.path)
              for run in waiting]
     return ("cannot merge " + "; ".join(parts) + ": no floor of it matches a floor of the other "
             "logs clearly (another building, or no floor in common); build it on its own")
