@@ -8,6 +8,8 @@ import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from mfmap.config import MfmapConfig, dump_config
 from mfmap.export.cabin import Cabin, measure_from_log
 from mfmap.export.files import tum_text, write_text
@@ -24,11 +26,12 @@ from mfmap.multilog.merge import (
     rename_segmentation,
 )
 from mfmap.progress import NullProgress
-from mfmap.types import FloorSegmentation, MappingResult
+from mfmap.types import F64, FloorSegmentation, MappingResult
 
 if TYPE_CHECKING:
     from mfmap.multilog.logs import LogRun
-    from mfmap.multilog.run import MultiLogReport, _Building
+    from mfmap.multilog.place import Placement
+    from mfmap.report import BuildReport
 
 
 @dataclasses.dataclass
@@ -43,14 +46,14 @@ class _LogMaps:
     cabins: list[Cabin]
 
 
-def write_building_outputs(partial: Path, building: _Building, cfg: MfmapConfig,
-                           report: MultiLogReport) -> dict[str, Any]:
-    """Every output file into `partial`; returns floors.json's document."""
-    from mfmap.multilog.run import building_floor_z
-
-    runs = building.runs
-    floor_z = building_floor_z(runs, building.placement, building.poses, building.final)
-    parts = [_log_maps(run, building, floor_z, cfg) for run in runs]
+def write_building_outputs(partial: Path, runs: list[LogRun], placement: Placement,
+                           poses: dict[int, dict[int, F64]], cfg: MfmapConfig,
+                           report: BuildReport) -> dict[str, Any]:
+    """Every output file into `partial` (`poses`: per log, its keyframes' building-frame
+    poses); returns floors.json's document."""
+    final = placement.renumbered()
+    floor_z = building_floor_z(runs, placement, poses, final)
+    parts = [_log_maps(run, placement, final, poses[run.index], floor_z, cfg) for run in runs]
     maps = parts[0].maps
     for part in parts[1:]:
         merge_maps(maps, part.maps)
@@ -68,16 +71,15 @@ def write_building_outputs(partial: Path, building: _Building, cfg: MfmapConfig,
     return summary.floors_doc
 
 
-def _log_maps(run: LogRun, building: _Building, floor_z: dict[int, float],
-              cfg: MfmapConfig) -> _LogMaps:
+def _log_maps(run: LogRun, placement: Placement, final: dict[int, int], poses: dict[int, F64],
+              floor_z: dict[int, float], cfg: MfmapConfig) -> _LogMaps:
     """One log's scans at the building's poses: its trajectory, its floors' maps, its cabins."""
-    placement, final = building.placement, building.final
     floors = {j: final[k] for j, k in placement.floors[run.index].items()}
     dz = float(placement.transforms[run.index][2, 3])
     seg = rename_segmentation(run.floors.seg, floors, {}, dz)
     mapping = rename_mapping(run.mapping, floors)
     graph = GraphResult(
-        poses=building.poses[run.index], initial_poses=run.graph.poses, bias_m={}, stats={},
+        poses=poses, initial_poses=run.graph.poses, bias_m={}, stats={},
         floor_matches=[], floor_z_m=dict(floor_z), iterations=run.graph.iterations,
         error_initial=0.0, error_final=0.0, seconds=0.0)
     stages = run.stages
@@ -91,4 +93,17 @@ def _log_maps(run: LogRun, building: _Building, floor_z: dict[int, float],
     return _LogMaps(seg, mapping, graph, trajectory, maps, cabins)
 
 
-__all__ = ["write_building_outputs"]
+def building_floor_z(runs: list[LogRun], placement: Placement, poses: dict[int, dict[int, F64]],
+                     final: dict[int, int]) -> dict[int, float]:
+    """Each building floor's level: the median z of every log's keyframes on it."""
+    zs: dict[int, list[float]] = {}
+    for run in runs:
+        floors = placement.floors[run.index]
+        for kf in run.graph.keyframes:
+            if kf.floor_id >= 0 and kf.floor_id in floors:
+                zs.setdefault(final[floors[kf.floor_id]], []).append(
+                    float(poses[run.index][kf.id][2, 3]))
+    return {k: float(np.median(v)) for k, v in sorted(zs.items())}
+
+
+__all__ = ["building_floor_z", "write_building_outputs"]

@@ -24,8 +24,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from mfmap.config import MfmapConfig
 from mfmap.errors import MfmapError
 from mfmap.logs import collect_warnings
@@ -166,7 +164,8 @@ class _Building:
 
         t0 = time.perf_counter()
         report = self.report(warnings)
-        self.floors_doc = write_building_outputs(partial, self, cfg, report)
+        self.floors_doc = write_building_outputs(partial, self.runs, self.placement, self.poses,
+                                                 cfg, report)
         self.timings["maps_and_export"] = time.perf_counter() - t0
         report.timings_s = self.timings
         return report
@@ -208,17 +207,4 @@ def _summary_lines(logs: list[dict[str, Any]]) -> dict[str, str]:
     return lines
 
 
-def building_floor_z(runs: list[LogRun], placement: Placement, poses: dict[int, dict[int, Any]],
-                     final: dict[int, int]) -> dict[int, float]:
-    """Each building floor's level: the median z of every log's keyframes on it."""
-    zs: dict[int, list[float]] = {}
-    for run in runs:
-        floors = placement.floors[run.index]
-        for kf in run.graph.keyframes:
-            if kf.floor_id >= 0 and kf.floor_id in floors:
-                zs.setdefault(final[floors[kf.floor_id]], []).append(
-                    float(poses[run.index][kf.id][2, 3]))
-    return {k: float(np.median(v)) for k, v in sorted(zs.items())}
-
-
-__all__ = ["MultiLogReport", "build_logs", "building_floor_z", "logs_of_build"]
+__all__ = ["MultiLogReport", "build_logs", "logs_of_build"]
