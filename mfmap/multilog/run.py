@@ -71,7 +71,8 @@ def build_logs(logs: Sequence[Path], out: Path, cfg: MfmapConfig, force: bool = 
         logs = [*logs_of_build(extend), *logs]
         inputs = [*inputs, Path(extend)]
     _check_distinct(logs)
-    folders = [f for log in logs for f in log_folders(log)]
+    # OUT2 may be neither inside a log's folder nor inside the extended build.
+    folders = [f for log in logs for f in log_folders(log)] + ([Path(extend)] if extend else [])
     run = RunFolder.create(Path(out), [*logs, *inputs], folders, force,
                            sum(input_size(log) for log in logs))
     with collect_warnings(first=("build", "ingest")) as collected, run.writing() as partial, \
