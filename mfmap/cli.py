@@ -290,8 +290,6 @@ def build(
     config: ConfigOpt = None,
 ) -> None:
     """The whole pipeline: floors, per-floor mapping, building graph, exports."""
-    if config is None and extend is not None and (extend / "config.yaml").is_file():
-        config = extend / "config.yaml"  # the extended build's own configuration
     cfg = _load(config, topic, assume_identity)
     limit_threads(threads)
     from mfmap.report import render_summary
