@@ -268,8 +268,12 @@ def floors(
 
 @app.command()
 def build(
-    log: Annotated[Path, typer.Argument(help="MCAP file, ROS 1 bag or ROS 2 bag folder.")],
+    logs: Annotated[list[Path], typer.Argument(help="MCAP file, ROS 1 bag or ROS 2 bag folder; "
+                                               "several logs of one building give one map.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+    extend: Annotated[Path | None, typer.Option(
+        "--extend", help="A build to add the logs to (read, not changed; its logs are built "
+        "again with them into OUT).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing output folder.")] = False,
     threads: Annotated[
         int,
@@ -288,11 +292,18 @@ def build(
     """The whole pipeline: floors, per-floor mapping, building graph, exports."""
     cfg = _load(config, topic, assume_identity)
     limit_threads(threads)
-    from mfmap.pipeline import build as run_build
     from mfmap.report import render_summary
 
-    result = run_build(log, out, cfg, force=force, progress=RichProgress(),
-                       inputs=[config] if config is not None else [])
+    inputs = [config] if config is not None else []
+    if len(logs) == 1 and extend is None:
+        from mfmap.pipeline import build as run_build
+
+        result = run_build(logs[0], out, cfg, force=force, progress=RichProgress(), inputs=inputs)
+    else:
+        from mfmap.multilog import build_logs
+
+        result = build_logs(logs, out, cfg, force=force, progress=RichProgress(), inputs=inputs,
+                            extend=extend)
     console.print(render_summary(result))
     for warning in result.warnings:
         err_console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
@@ -354,12 +365,19 @@ def eval_cmd(
         list[str] | None,
         typer.Option("--fail-above", help="METRIC=VALUE: exit 3 when the metric is above VALUE."),
     ] = None,
+    truth: Annotated[list[Path] | None, typer.Option("--truth", help="A simulated log's folder: "
+                     "its gt_* files; repeated, several logs' truth merged (OUT/truth/).")] = None,
     config: ConfigOpt = None,
 ) -> None:
     """Score a build against ground truth: points, cloud, trajectory, floors."""
     from mfmap.eval import evaluate, parse_thresholds
     from mfmap.eval.report import render_eval
 
+    if truth:
+        from mfmap.eval.sessions import merge_sessions
+
+        given = merge_sessions(truth, out / "truth")
+        points, trajectory, floors_gt = given.points, given.trajectory, given.floors
     cfg = _load(config)
     thresholds = parse_thresholds(fail_above or [])
     result = evaluate(

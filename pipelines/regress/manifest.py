@@ -19,6 +19,9 @@ A manifest is YAML. Paths in it are relative to the manifest file. Example::
       - name: tiny-day2
         simulate: {scenario: tiny-day2, seed: 0}
         localize: {map_simulate: {scenario: tiny-day1, seed: 0}}
+      - name: office3-day1+day2
+        simulate: {scenario: office3-day1, seed: 0}
+        build_with: [{scenario: office3-day2, seed: 0}]
 
 Every model forbids unknown keys, so a typo is an error naming the manifest file and the key.
 """
@@ -178,6 +181,12 @@ class LogEntry(BaseModel):
     log: Path | None = Field(None, description="MCAP file, ROS 1 bag or ROS 2 bag folder")
     simulate: Simulate | None = Field(None, description="generate the log with the simulator")
     localize: Localize | None = Field(None, description="localise the log in a map, not build it")
+    build_with: list[Simulate] = Field(
+        default_factory=list,
+        description="other simulated logs of the building, built with this one into one map "
+        "(`mfmap build A B ...`; this log first, its start the building frame) and scored "
+        "against the logs' merged ground truth",
+    )
     ground_truth: GroundTruth = Field(default_factory=GroundTruth)
     skip_ground_truth: list[GroundTruthKind] = Field(
         default_factory=list,
@@ -194,6 +203,8 @@ class LogEntry(BaseModel):
     def _one_source(self) -> LogEntry:
         if (self.log is None) == (self.simulate is None):
             raise ValueError("give exactly one of 'log' or 'simulate'")
+        if self.build_with and self.localize is not None:
+            raise ValueError("give at most one of 'build_with' or 'localize'")
         return self
 
 

@@ -43,6 +43,7 @@ class LogJob:
     ground_truth: dict[str, str | None] = field(default_factory=dict)
     skip_ground_truth: tuple[str, ...] = ()
     localize: dict[str, Any] | None = None  # Localize fields: localise in a map, not build
+    build_with: tuple[dict[str, Any], ...] = ()  # Simulate fields of logs built with this one
     num_cpus: float = 1.0
     memory_gb: float = 2.0
 

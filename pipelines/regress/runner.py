@@ -108,6 +108,7 @@ def make_jobs(manifest: Manifest, out_dir: Path) -> list[LogJob]:
                 ground_truth=gt,
                 skip_ground_truth=tuple(entry.skip_ground_truth),
                 localize=entry.localize.model_dump(mode="json") if entry.localize is not None else None,
+                build_with=tuple(sim.model_dump() for sim in entry.build_with),
                 num_cpus=res.num_cpus,
                 memory_gb=res.memory_gb,
             )
@@ -245,12 +246,14 @@ def run_job(job: LogJob, reraise: bool = False) -> LogOutcome:
         from mfmap.config import MfmapConfig
 
         config = MfmapConfig.model_validate(job.config)
-        if job.localize is not None:
+        if job.localize is not None or job.build_with:
             from pipelines.regress.localize import localize_job
+            from pipelines.regress.multilog import multilog_job
 
             steps: list[str] = []
             try:
-                metrics = localize_job(job, Path(log), gt, config, steps.append)
+                run = localize_job if job.localize is not None else multilog_job
+                metrics = run(job, Path(log), gt, config, steps.append)
             finally:
                 stage = steps[-1] if steps else stage
             return LogOutcome(name=job.name, ok=True, metrics=metrics,

@@ -117,6 +117,17 @@ def test_localize_entry_names_one_map(write_manifest: Callable[..., Path], tmp_p
         load_manifest(write_manifest(_minimal(logs=[missing])))
 
 
+def test_build_with_entry_names_the_other_logs(write_manifest: Callable[..., Path],
+                                               tmp_path: Path) -> None:
+    entry = {"name": "office3-day1+day2", "simulate": {"scenario": "office3-day1"},
+             "build_with": [{"scenario": "office3-day2"}]}
+    jobs = make_jobs(load_manifest(write_manifest(_minimal(logs=[entry]))), tmp_path / "out")
+    assert [sim["scenario"] for sim in jobs[0].build_with] == ["office3-day2"]
+    both = {**entry, "localize": {"map_simulate": {"scenario": "tiny-day1"}}}
+    with pytest.raises(ManifestError, match="at most one of 'build_with' or 'localize'"):
+        load_manifest(write_manifest(_minimal(logs=[both])))
+
+
 def test_not_a_mapping_and_not_yaml(tmp_path: Path) -> None:
     bad = tmp_path / "list.yaml"
     bad.write_text("- 1\n- 2\n")
@@ -207,7 +218,7 @@ def test_sim_folder_matches_the_test_fixture_layout(write_manifest: Callable[...
 
 
 @pytest.mark.parametrize("name", ["sim_quick.yaml", "sim_full.yaml", "sim_seeds.yaml", "stress.yaml",
-                                  "localize.yaml"])
+                                  "localize.yaml", "multilog.yaml"])
 def test_shipped_manifests_load(name: str) -> None:
     from mfmap.sim import SCENARIOS
 
