@@ -20,7 +20,7 @@ from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.mapper import Mapper
 from mfmap.mapping.motion import MotionModel
 from mfmap.mapping.source import LogSourceLike, read_scans, reopener
-from mfmap.mapping.timeline import Timeline
+from mfmap.mapping.timeline import Timeline, widen_walks
 from mfmap.progress import NullProgress, Progress
 from mfmap.types import Extrinsics, FloorSegmentation, MappingResult, Role
 
@@ -51,6 +51,7 @@ def map_floors(
         raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)")
     total = source.count(Role.SCAN2D if planar else Role.LIDAR)
     started = time.perf_counter()
+    seg = widen_walks(seg)
     chunks = plan_chunks(Timeline(seg), cfg.split_at_stairs)
     reopen = reopener(source)
     with progress.stage("mapping", total=total) as bar:

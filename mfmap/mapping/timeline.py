@@ -2,12 +2,45 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
-from mfmap.types import FloorSegmentation, Transition, TransitionKind
+from mfmap.types import Floor, FloorSegmentation, Transition, TransitionKind
+
+# The mapping takes a stair walk this much wider on each side than the floors stage (ns): the
+# floors stage times a walk by its flights, and the approach to the first step and the step off
+# the last are mapped as stairs (every scan registered, the heading free), not as the floor's (a
+# scan on the steps mapped as the floor's puts the steps in its map and pulls its height).
+WALK_MARGIN_NS = 2_000_000_000
+
+
+def widen_walks(seg: FloorSegmentation, margin_ns: int = WALK_MARGIN_NS) -> FloorSegmentation:
+    """The segmentation with every stair walk widened by `margin_ns` on each side, within the
+    visits either side (a walk takes at most a quarter of each, so each keeps half its length)."""
+    visits = seg.visits()
+    if not any(tr.kind == TransitionKind.STAIRS for tr in seg.transitions):
+        return seg
+    transitions = sorted(seg.transitions, key=lambda tr: tr.start_ns)
+    bounds = {v[1:]: list(v[1:]) for v in visits}
+    keys = [v[1:] for v in visits]
+    widened = []
+    for k, tr in enumerate(transitions):
+        if tr.kind != TransitionKind.STAIRS or k + 1 >= len(keys):
+            widened.append(tr)
+            continue
+        before, after = keys[k], keys[k + 1]
+        start = max(tr.start_ns - margin_ns, before[1] - (before[1] - before[0]) // 4)
+        end = min(tr.end_ns + margin_ns, after[0] + (after[1] - after[0]) // 4)
+        bounds[before][1], bounds[after][0] = start, end
+        widened.append(dataclasses.replace(tr, start_ns=start, end_ns=end))
+    floors = tuple(
+        Floor(f.id, f.elevation_m, f.pressure_pa, tuple((bounds[v][0], bounds[v][1]) for v in f.visits))
+        for f in seg.floors
+    )
+    return dataclasses.replace(seg, floors=floors, transitions=tuple(widened))
 
 
 class SegmentKind(str, Enum):
