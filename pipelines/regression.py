@@ -1,7 +1,7 @@
 """CI regression over many logs: build and score each, compare with the baseline.
 
     python -m pipelines.regression MANIFEST [--ray [ADDRESS]] [--out DIR]
-                                            [--update-baseline] [--workers N]
+                                            [--update-baseline] [--workers N] [--config FILE]
 
 Writes DIR/summary.md (one row per log, worst first), DIR/junit.xml and DIR/results.json, and
 each log's build and eval.json under DIR/logs/<name>/. Exit codes: 0 every log passed (or its
@@ -13,6 +13,11 @@ Examples:
     python -m pipelines.regression pipelines/manifests/sim_full.yaml --ray
     python -m pipelines.regression pipelines/manifests/sim_full.yaml --ray ray://head:10001
     python -m pipelines.regression pipelines/manifests/sim_quick.yaml --update-baseline
+    python -m pipelines.regression pipelines/manifests/stress.yaml --config baro_only.yaml --out DIR
+
+`--config FILE` lays an mfmap config over every log's (the manifest's and the log's own
+overrides included), for an ablation over a whole set; such a run is compared with the baseline
+but cannot update it.
 """
 
 from __future__ import annotations
@@ -21,8 +26,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from mfmap.config import merge_dicts, read_yaml_mapping
 from mfmap.errors import MfmapError
-from pipelines.regress.manifest import load_manifest
+from pipelines.regress.manifest import Manifest, ManifestError, load_manifest
 from pipelines.regress.model import LogResult, Verdict
 from pipelines.regress.report import markdown_summary
 from pipelines.regress.runner import run_regression
@@ -55,12 +61,26 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--workers", type=int, default=None, help="local processes (default: fit CPUs and memory)"
     )
+    parser.add_argument(
+        "--config", type=Path, default=None, metavar="FILE",
+        help="mfmap config laid over every log's (an ablation); cannot update the baseline",
+    )
     args = parser.parse_args(argv)
+    if args.config is not None and args.update_baseline:
+        parser.error("--config runs are ablations: they cannot update the baseline")
     if args.workers is not None and args.workers < 1:
         parser.error("--workers must be at least 1")
     if args.workers is not None and args.ray is not None:
         parser.error("--workers applies to the local pool, not to --ray")
     return args
+
+
+def lay_config(manifest: Manifest, path: Path) -> None:
+    """`path`'s mfmap config laid over every log's, the log's own overrides included."""
+    extra = read_yaml_mapping(path, ManifestError)
+    manifest.config_overrides = merge_dicts(manifest.config_overrides, extra)
+    for entry in manifest.logs:
+        entry.config_overrides = merge_dicts(entry.config_overrides, extra)
 
 
 def _progress(result: LogResult) -> None:
@@ -79,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         manifest = load_manifest(args.manifest)
+        if args.config is not None:
+            lay_config(manifest, args.config)
         out = args.out if args.out is not None else Path("work") / "regression" / manifest.name
         run = run_regression(
             manifest,

@@ -14,10 +14,10 @@ import pytest
 from mfmap.config import MfmapConfig
 from mfmap.graph.config import AblationConfig, GraphConfig
 from mfmap.graph.optimize import optimize_building
-from mfmap.graph.ride import ride_height
+from mfmap.graph.ride import SIGMA_FLOOR_M, ride_height
 from mfmap.ingest import open_log
 from mfmap.pipeline import segment_floors
-from mfmap.types import ImuSeries, PressureSeries
+from mfmap.types import F64, ImuSeries, PressureSeries
 from tests.graph.synthetic import START_NS, make_building, ride_imu
 
 RIDE_NS = (START_NS, START_NS + 15 * 10**9)
@@ -158,11 +158,9 @@ def test_a_transition_height_moves_the_floor_not_the_keyframes_at_the_ride() -> 
     assert abs(res.floor_z_m[1] - res.floor_z_m[0] - ride["baro_height_change_m"]) < 0.005
 
 
-def _cabin_imu(moves: list[tuple[float, float]], seed: int, still_s: float = 6.0) -> tuple[ImuSeries, int, int]:
-    """A 200 Hz IMU in a cabin that makes `moves` (height change, then seconds standing at the
-    next floor) at 0.5 m/s^2 up to 1 m/s, with a 0.03 m/s^2 bias and white noise; returns it
-    with the first move's start and the last one's end."""
-    rng = np.random.default_rng([seed, 31])
+def _cabin_profile(moves: list[tuple[float, float]], still_s: float = 6.0) -> F64:
+    """The cabin's vertical acceleration at 200 Hz for `moves` (height change, then seconds
+    standing at the next floor) at 0.5 m/s^2 up to 1 m/s, standing `still_s` before and after."""
     dt_s = 1.0 / 200.0
     parts = [np.zeros(round(still_s / dt_s))]
     for dz_m, stop_s in moves:
@@ -172,7 +170,14 @@ def _cabin_imu(moves: list[tuple[float, float]], seed: int, still_s: float = 6.0
         a = math.copysign(0.5, dz_m) * (abs(dz_m) / (0.5 * acc_s * (acc_s + cruise_s)))
         parts += [np.full(n_acc, a), np.zeros(n_cruise), np.full(n_acc, -a), np.zeros(round(stop_s / dt_s))]
     parts.append(np.zeros(round(still_s / dt_s)))
-    a_up = np.concatenate(parts)
+    return np.concatenate(parts)
+
+
+def _profile_imu(a_up: F64, seed: int, still_s: float = 6.0) -> tuple[ImuSeries, int, int]:
+    """A 200 Hz IMU feeling `a_up`, with a 0.03 m/s^2 bias and white noise; returns it with
+    the first move's start and the last one's end."""
+    rng = np.random.default_rng([seed, 31])
+    dt_s = 1.0 / 200.0
     n = a_up.shape[0]
     accel = np.column_stack([np.full(n, 0.03), np.full(n, -0.02), 9.80665 + 0.03 + a_up])
     accel += rng.normal(0.0, 0.03, (n, 3))
@@ -181,6 +186,11 @@ def _cabin_imu(moves: list[tuple[float, float]], seed: int, still_s: float = 6.0
     start = START_NS + int(still_s * 1e9)
     end = START_NS + int((n * dt_s - still_s) * 1e9)
     return imu, start, end
+
+
+def _cabin_imu(moves: list[tuple[float, float]], seed: int, still_s: float = 6.0) -> tuple[ImuSeries, int, int]:
+    """A 200 Hz IMU in a cabin that makes `moves` (see _cabin_profile)."""
+    return _profile_imu(_cabin_profile(moves, still_s), seed, still_s)
 
 
 def test_a_ride_that_stops_on_the_way_is_integrated_move_by_move() -> None:
@@ -202,3 +212,41 @@ def test_a_ride_that_stops_on_the_way_is_integrated_move_by_move() -> None:
     ride = ride_height(imu, start, end)
     assert ride.legs == 1 and ride.height_change_m is not None
     assert abs(ride.height_change_m - 12.0) < 0.06
+
+
+def test_the_cruise_is_not_integrated_while_the_cabin_holds_its_speed() -> None:
+    """12 m in one move: 2 s speeding up, 10 s cruising, 2 s braking. The cruise's noise is left
+    out: the error is the speed that the 4 s of speeding up and braking leave uncertain, over the
+    10 s (about 2.6 cm; the whole 14 s window's noise would be 3.2 cm), and the sigma says so."""
+    errors, sigmas = [], []
+    for seed in range(16):
+        imu, start, end = _cabin_imu([(12.0, 0.0)], seed)
+        ride = ride_height(imu, start, end)
+        assert ride.reason == "ok" and ride.legs == 1 and ride.height_change_m is not None
+        errors.append(ride.height_change_m - 12.0)
+        sigmas.append(math.sqrt(ride.sigma_m**2 - SIGMA_FLOOR_M**2))
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    whole_m = 0.03 * math.sqrt(1 / 200) * 14.0**1.5 / math.sqrt(12)
+    assert float(np.mean(sigmas)) < 0.85 * whole_m
+    assert 0.5 * float(np.mean(sigmas)) < rms < 1.5 * float(np.mean(sigmas))
+
+
+def test_a_cabin_that_drifts_while_cruising_is_integrated_throughout() -> None:
+    """The cabin loses 0.015 m/s^2 of speed for 8 s of its cruise (under the threshold that
+    finds its acceleration): leaving the cruise out would miss those 12 cm/s and put the height
+    12 cm off; the heights with and without the cruise disagree, so the whole move is integrated."""
+    a_up = _cabin_profile([(12.0, 0.0)])
+    dt_s = 1.0 / 200.0
+    cruise = slice(round((6.0 + 3.0) / dt_s), round((6.0 + 11.0) / dt_s))
+    a_up[cruise] -= 0.015
+    # The braking ends the move at rest: it brakes less by the 0.12 m/s lost.
+    braking = np.flatnonzero(a_up < -0.1)
+    a_up[braking] += 0.015 * 8.0 / (braking.shape[0] * dt_s)
+    v = np.cumsum(a_up) * dt_s
+    true_m = float(np.sum(v) * dt_s)
+    assert abs(v[-1]) < 1e-9 and 11.0 < true_m < 12.0
+    for seed in range(4):
+        imu, start, end = _profile_imu(a_up, seed)
+        ride = ride_height(imu, start, end)
+        assert ride.reason == "ok" and ride.height_change_m is not None
+        assert abs(ride.height_change_m - true_m) < 0.06

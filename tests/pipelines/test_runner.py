@@ -17,7 +17,8 @@ import yaml
 
 from pipelines.regress.manifest import load_manifest
 from pipelines.regress.model import RunResult, Verdict
-from pipelines.regress.runner import run_regression
+from pipelines.regress.runner import make_jobs, run_regression
+from pipelines.regression import lay_config
 from pipelines.regression import main as regression_main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -117,6 +118,33 @@ def test_cli_exit_codes_and_update_baseline_keeps_failed_entry(
     with pytest.raises(SystemExit) as exc:
         regression_main([str(manifest), "--workers", "0"])
     assert exc.value.code == 2
+
+
+def test_config_file_is_laid_over_every_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--config FILE: an ablation over the whole set, over the manifest's and the logs' own
+    overrides; it cannot update the baseline, and a key mfmap does not know is a usage error."""
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text(yaml.safe_dump({
+        "name": "abl", "baseline": "base.json",
+        "config_overrides": {"graph": {"ablation": {"walk_height": True}}},
+        "logs": [{"name": "a", "log": "a.mcap"},
+                 {"name": "b", "log": "b.mcap", "config_overrides": {"graph": {"ablation": {"imu_ride_height": True}}}}],
+    }))
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.mcap").write_bytes(b"")
+    baro_only = tmp_path / "baro_only.yaml"
+    baro_only.write_text("graph:\n  ablation:\n    imu_ride_height: false\n    walk_height: false\n")
+    loaded = load_manifest(manifest)
+    lay_config(loaded, baro_only)
+    for job in make_jobs(loaded, tmp_path / "out"):
+        assert job.config["graph"]["ablation"] == {"imu_ride_height": False, "walk_height": False}, job.name
+    with pytest.raises(SystemExit) as exc:
+        regression_main([str(manifest), "--config", str(baro_only), "--update-baseline"])
+    assert exc.value.code == 2
+    capsys.readouterr()
+    baro_only.write_text("graph:\n  ablation:\n    imu_ride_hieght: false\n")
+    assert regression_main([str(manifest), "--config", str(baro_only), "--out", str(tmp_path / "o")]) == 2
+    assert "imu_ride_hieght" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------
