@@ -324,9 +324,10 @@ def _add_edges(
         factor = gtsam.BetweenFactorPose3(X(edge.i), X(edge.j), gtsam.Pose3(edge.measured), model)
         builder.add(edge.kind, factor, sqrt_info)
         builder.links.append((edge.i, edge.j))
-        if walk:
+        if walk and sigma_z < FREE_SIGMA:
             # The lidar's climb, a scale-true height: weighed with the barometer's per
-            # transition (mfmap.graph.heights) before it becomes a factor.
+            # transition (mfmap.graph.heights) before it becomes a factor. Not a 2D lidar's,
+            # which measures none (its edge's z is free).
             walks[(edge.i, edge.j)] = Walk.of(edge, initial_poses, sigma_z)
     return walks
 

@@ -37,6 +37,9 @@ from mfmap.types import (
     TransitionKind,
 )
 
+# The height sigma of a 2D lidar's edge across a stair walk (m): it measures no climb.
+FREE_Z_SIGMA_M = 1000.0
+
 
 class Mapper:
     """Tracks the robot scan by scan, hands out keyframes and their edges (`book`)."""
@@ -170,7 +173,9 @@ class Mapper:
         measured = inverse(previous.pose) @ kf.pose
         information = odometry_information(self.cfg, measured)
         if previous.visit != kf.visit:  # across a stair walk
-            information[5, 5] = min(information[5, 5], self.cfg.stairs.sigma_z_m**-2)
+            # A 2D lidar's odometry does not climb: its z across the walk measures nothing.
+            information[5, 5] = (FREE_Z_SIGMA_M**-2 if self.planar
+                                 else min(information[5, 5], self.cfg.stairs.sigma_z_m**-2))
             measured = walk_heading(self.cfg, self.motion.gyro, previous, kf, measured,
                                     self.book.scan_poses)
         self.book.edges.append(PoseEdge(previous.id, kf.id, measured, information, EdgeKind.ODOMETRY,
