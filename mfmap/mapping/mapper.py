@@ -112,7 +112,8 @@ class Mapper:
             self._record(stamp_ns, step.pose, step.ref_ns, step.pose, step.delta, step.dt)
             return
         if self._needs_keyframe(step.pose):
-            self._keyframe(step.ref_ns, step.points, step.pose, step.match.fitness,
+            assert step.sensor is not None
+            self._keyframe(step.ref_ns, step.points, step.sensor, step.pose, step.match.fitness,
                            step.match.rmse_m, emit=segment.kind == SegmentKind.VISIT)
         self._record(stamp_ns, step.scan_pose(), step.ref_ns, step.pose,
                      inverse(state.pose) @ step.pose if state.stamp_ns is not None else step.delta,
@@ -141,11 +142,12 @@ class Mapper:
             or np.degrees(rotation_angle_rad(rel)) >= self.cfg.keyframes.angle_deg
         )
 
-    def _keyframe(self, stamp_ns: int, points: F64, pose: F64, fitness: float, rmse_m: float,
-                  emit: bool) -> None:
-        """Update the local map; during a visit also hand out a keyframe (not on stairs)."""
+    def _keyframe(self, stamp_ns: int, points: F64, sensor: F64, pose: F64, fitness: float,
+                  rmse_m: float, emit: bool) -> None:
+        """Update the local map (`sensor`: the lidar in the base frame); during a visit also
+        hand out a keyframe (not on stairs)."""
         state = self.state
-        self.matcher.add_keyframe(points, pose)
+        self.matcher.add_keyframe(points, pose, sensor)
         self.counts.max_map_points = max(self.counts.max_map_points, self.matcher.map.size)
         state.map_pose = pose
         if not emit:

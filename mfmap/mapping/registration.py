@@ -48,32 +48,70 @@ def with_normals(points: F32 | F64, radius_m: float, max_nn: int = 20) -> o3d.ge
     return cloud
 
 
+def downsample_viewed(points: F64, views: F64, voxel_m: float) -> tuple[F64, F64]:
+    """Voxel-grid downsample of points and their unit directions towards the sensor that saw
+    them: per voxel the centroid and the mean direction (open3d averages normals)."""
+    if len(points) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    cloud = to_o3d(points)
+    cloud.normals = o3d.utility.Vector3dVector(np.asarray(views, dtype=np.float64))
+    down = cloud.voxel_down_sample(voxel_m)
+    return np.asarray(down.points), np.asarray(down.normals)
+
+
+def view_directions(points: F64, sensor: F64) -> F64:
+    """Unit vectors from each point towards the sensor position that saw it."""
+    towards = sensor[None, :] - points
+    norm = np.linalg.norm(towards, axis=1, keepdims=True)
+    return towards / np.maximum(norm, 1e-9)
+
+
 class IcpTarget:
     """A cloud with normals and its k-d tree, for many ICP calls (or nearest-point queries)
-    against it."""
+    against it. With `oriented`, every normal points to the side its surface was seen from."""
 
-    def __init__(self, cloud: o3d.geometry.PointCloud) -> None:
+    def __init__(self, cloud: o3d.geometry.PointCloud, oriented: bool = False) -> None:
         self.cloud = cloud
         self.points: F64 = np.asarray(cloud.points)
         self.normals: F64 = np.asarray(cloud.normals)
+        self.oriented = oriented
         self.tree = KDTree(self.points) if len(self.points) else None
 
     @classmethod
-    def estimate(cls, points: F32 | F64, normal_radius_m: float, max_nn: int = 20) -> IcpTarget:
-        """The points with open3d's normals (`with_normals`)."""
-        return cls(with_normals(points, normal_radius_m, max_nn))
+    def estimate(cls, points: F32 | F64, normal_radius_m: float, max_nn: int = 20,
+                 views: F64 | None = None) -> IcpTarget:
+        """The points with open3d's normals (`with_normals`); with `views` (per point, towards
+        the sensors that saw it) each normal turned to the side it was seen from."""
+        if views is None:
+            return cls(with_normals(points, normal_radius_m, max_nn))
+        cloud = to_o3d(points)
+        # open3d turns each estimated normal to agree with the normal the point already has.
+        cloud.normals = o3d.utility.Vector3dVector(np.asarray(views, dtype=np.float64))
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius_m,
+                                                                    max_nn=max_nn))
+        return cls(cloud, oriented=True)
 
     def __len__(self) -> int:
         return len(self.points)
 
-    def nearest(self, points: F64, max_distance_m: float) -> tuple[np.ndarray, np.ndarray, F64]:
+    def nearest(self, points: F64, max_distance_m: float,
+                sensor: F64 | None = None) -> tuple[np.ndarray, np.ndarray, F64]:
         """(source indices, target indices, distances) of the points' nearest target point
-        within `max_distance_m`."""
+        within `max_distance_m`.
+
+        With `sensor` (its position, in the target's frame) and oriented normals, a point's
+        nearest target point counts only where its surface faces the sensor: a point on one
+        face of a thin wall is never matched to the other face, seen from the other side.
+        """
         if self.tree is None or len(points) == 0:
             empty = np.zeros(0, dtype=np.int64)
             return empty, empty, np.zeros(0)
         dist, idx = self.tree.query(points, k=1, distance_upper_bound=max_distance_m)
         found = np.flatnonzero(idx < len(self.points))
+        if sensor is not None and self.oriented:
+            near = idx[found]
+            facing = np.einsum("ij,ij->i", self.normals[near], sensor[None, :] - self.points[near])
+            found = found[facing > 0.0]
         return found, idx[found].astype(np.int64), dist[found]
 
 
@@ -116,19 +154,23 @@ def icp(
     kernel_scale_m: float,
     max_iterations: int = 30,
     tolerance: float = 1e-6,
+    sensor: F64 | None = None,
 ) -> Registration:
     """Point-to-plane ICP with a Tukey kernel, as open3d's `registration_icp` runs it.
 
     Each iteration takes every source point's nearest target point within `max_distance_m`,
     weighs its point-to-plane residual r by Tukey's (1 - (r/k)^2)^2 (0 beyond k), solves the
     Gauss-Newton step in (rx, ry, rz, tx, ty, tz) and applies it on the left. Stops when fitness
-    and inlier RMSE change by less than `tolerance`.
+    and inlier RMSE change by less than `tolerance`. With `sensor` (the sensor's position in the
+    source's frame) and a target with oriented normals, only target surfaces facing the sensor
+    are correspondences (`IcpTarget.nearest`).
     """
     transform = np.asarray(init, dtype=np.float64).copy()
     moved = np.asarray(source, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
 
     def score(points: F64) -> tuple[np.ndarray, np.ndarray, float, float]:
-        src, tgt, dist = target.nearest(points, max_distance_m)
+        seen_from = None if sensor is None else transform[:3, :3] @ sensor + transform[:3, 3]
+        src, tgt, dist = target.nearest(points, max_distance_m, seen_from)
         if len(src) == 0:
             return src, tgt, 0.0, 0.0
         return src, tgt, len(src) / len(points), float(np.sqrt(np.dot(dist, dist) / len(src)))

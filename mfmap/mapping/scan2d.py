@@ -184,5 +184,6 @@ class Scan2DMatcher:
         self.threshold.update(inverse(predicted) @ pose)
         return ScanMatch(pose, fitness, rmse, True)
 
-    def add_keyframe(self, points_base: F64, pose: F64) -> None:
+    def add_keyframe(self, points_base: F64, pose: F64, sensor: F64 | None = None) -> None:
+        """A keyframe's points (base frame) at `pose`; `sensor` is not needed in the plane."""
         self.map.add(transform(points_base, pose)[:, :2])

@@ -49,6 +49,7 @@ class Step:
     ref_offset_s: float = 0.0
     angular: F64 | None = None
     linear: F64 | None = None
+    sensor: F64 | None = None  # the lidar's position in the base frame
 
     def scan_pose(self) -> F64:
         """The pose at the scan's stamp (the sweep's start), back from the reference time."""
@@ -93,7 +94,8 @@ class ScanStep:
             sensor_to_base = np.eye(4)
         return transform(xyz, sensor_to_base)
 
-    def _origin(self, frame_id: str) -> F64:
+    def origin(self, frame_id: str) -> F64:
+        """The lidar's position in the base frame (the base origin when its mount is unknown)."""
         sensor_to_base = self.extrinsics.get(frame_id)
         return np.zeros(3) if sensor_to_base is None else sensor_to_base[:3, 3]
 
@@ -129,14 +131,16 @@ class ScanStep:
         points = self._to_base(frame_id, xyz[keep])
         if len(sweep.offsets_s) and dt > 0:
             points = deskew(points, sweep.offsets_s[keep] - sweep.ref_offset_s, angular, linear)
+        sensor = self.origin(frame_id)
         if self.cabin is not None:
-            points = self.cabin.apply(points, ref_ns, predicted, self._origin(frame_id))
-        match = self._match(state, points, predicted, ref_ns, on_stairs)
+            points = self.cabin.apply(points, ref_ns, predicted, sensor)
+        match = self._match(state, points, predicted, ref_ns, on_stairs, sensor)
         pose = self._settle(match, ref_ns, on_stairs)
-        return Step(ref_ns, pose, delta, dt, points, match, sweep.ref_offset_s, angular, linear)
+        return Step(ref_ns, pose, delta, dt, points, match, sweep.ref_offset_s, angular, linear,
+                    sensor)
 
     def _match(self, state: TrackState, points: F64, predicted: F64, ref_ns: int,
-               on_stairs: bool) -> ScanMatch:
+               on_stairs: bool, sensor: F64) -> ScanMatch:
         if isinstance(self.matcher, ScanMatcher):
             # Not on stairs: every scan there sees new steps (fitness < 0.95), and holding the
             # heading to the gyro left the climb 6 cm short of a 3.5 m flight.
@@ -146,8 +150,9 @@ class ScanStep:
                 since_ns, since_pose = self.still.registered
                 gyro_var = self.motion.heading_var((ref_ns - since_ns) / 1e9,
                                                    rotation_angle_rad(inverse(since_pose) @ predicted))
+            facing = sensor if self.cfg.icp.facing_surfaces else None
             return self.matcher.match(points, predicted, gyro_prior=gyro_prior,
-                                      gyro_var_rad2=gyro_var)
+                                      gyro_var_rad2=gyro_var, sensor=facing)
         return self.matcher.match(
             points, predicted, gyro_prior=self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
 
