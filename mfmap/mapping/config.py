@@ -95,10 +95,8 @@ class IcpConfig(BaseModel):
         False,
         description="match a scan's points only to map surfaces that face the lidar (the map "
         "keeps the side each surface was seen from), so the far face of a thin wall seen for "
-        "the first time is not matched to its near face. Off by default: on the generated "
-        "corridors it takes out 11-12 cm slips of the odometry, but it moved the stairs "
-        "scenario's first lidar climb from +1.6 to -8.4 cm (docs/heights.md: lidar climbs set "
-        "the floors' heights)",
+        "the first time is not matched to its near face; off: the stair climbs it registers, "
+        "which set floors' heights, are less repeatable with it",
     )
 
 
