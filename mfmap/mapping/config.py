@@ -155,6 +155,12 @@ class StairsConfig(BaseModel):
         "wanders). With a gyro, the walk's turn is the two weighed by their variances and the "
         "scans on the way follow the gyro (0: the registrations' turn)",
     )
+    walk_margin_s: float = Field(
+        2.0, ge=0.0, le=30.0,
+        description="map each stair walk this much wider on each side than the floors stage times "
+        "it (s): the approach to the first step and the step off the last are mapped as stairs, "
+        "every scan registered and the heading free, not as the floor's",
+    )
     level_window_s: float = Field(
         10.0, le=3600.0, ge=0.0,
         description="after stairs, level the pose by the mean accelerometer over this long "

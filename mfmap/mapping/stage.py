@@ -51,7 +51,7 @@ def map_floors(
         raise MissingDataError("the log has no lidar (neither PointCloud2 nor LaserScan)")
     total = source.count(Role.SCAN2D if planar else Role.LIDAR)
     started = time.perf_counter()
-    seg = widen_walks(seg)
+    seg = widen_walks(seg, round(cfg.stairs.walk_margin_s * 1e9))
     chunks = plan_chunks(Timeline(seg), cfg.split_at_stairs)
     reopen = reopener(source)
     with progress.stage("mapping", total=total) as bar:

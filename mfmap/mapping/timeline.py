@@ -10,18 +10,16 @@ import numpy as np
 
 from mfmap.types import Floor, FloorSegmentation, Transition, TransitionKind
 
-# The mapping takes a stair walk this much wider on each side than the floors stage (ns): the
-# floors stage times a walk by its flights, and the approach to the first step and the step off
-# the last are mapped as stairs (every scan registered, the heading free), not as the floor's (a
-# scan on the steps mapped as the floor's puts the steps in its map and pulls its height).
-WALK_MARGIN_NS = 2_000_000_000
 
-
-def widen_walks(seg: FloorSegmentation, margin_ns: int = WALK_MARGIN_NS) -> FloorSegmentation:
+def widen_walks(seg: FloorSegmentation, margin_ns: int) -> FloorSegmentation:
     """The segmentation with every stair walk widened by `margin_ns` on each side, within the
-    visits either side (a walk takes at most a quarter of each, so each keeps half its length)."""
+    visits either side (a walk takes at most a quarter of each, so each keeps half its length).
+
+    The floors stage times a walk by its flights, for floors.json; the mapping needs the span
+    that encloses it (`mapping.stairs.walk_margin_s`): a scan on the steps mapped as the floor's
+    puts the steps in its map and pulls its height."""
     visits = seg.visits()
-    if not any(tr.kind == TransitionKind.STAIRS for tr in seg.transitions):
+    if margin_ns <= 0 or not any(tr.kind == TransitionKind.STAIRS for tr in seg.transitions):
         return seg
     transitions = sorted(seg.transitions, key=lambda tr: tr.start_ns)
     bounds = {v[1:]: list(v[1:]) for v in visits}
