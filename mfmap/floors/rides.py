@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mfmap.floors.config import FloorsConfig
-from mfmap.floors.segment import cluster_visits, solve_elevations
+from mfmap.floors.segment import cluster_visits, ids_by_elevation, solve_elevations
 from mfmap.types import Floor, FloorSegmentation, Transition, TransitionKind
 
 # The height trace handed to the mapping stage (its z during a ride) is sampled this often (s).
@@ -29,9 +29,8 @@ def segment_rides(rides: Sequence[tuple[int, int, float]], start_ns: int, end_ns
     changes = [dz for _, _, dz in rides]
     labels = cluster_visits(changes, cfg.cluster_tolerance_m)
     elevations = solve_elevations(labels, changes)
-    order = np.argsort(elevations, kind="stable")
-    id_of_label = np.empty_like(order)
-    id_of_label[order] = np.arange(order.shape[0])
+    id_of_label = ids_by_elevation(elevations)
+    order = np.argsort(id_of_label)  # labels lowest first
     edges = [start_ns] + [t for a, b, _ in rides for t in (a, b)] + [end_ns]
     visits = [(edges[2 * k], edges[2 * k + 1]) for k in range(len(rides) + 1)]
     transitions = tuple(

@@ -121,6 +121,15 @@ def solve_elevations(labels: list[int], changes: list[float]) -> F64:
     return np.concatenate(([0.0], solution))
 
 
+def ids_by_elevation(elevations: F64) -> npt.NDArray[np.intp]:
+    """Each cluster label's floor id: ids from 0 = lowest (elevations relative to the start
+    floor, label 0, solved as 0)."""
+    order = np.argsort(elevations, kind="stable")
+    id_of_label = np.empty_like(order)
+    id_of_label[order] = np.arange(order.shape[0])
+    return id_of_label
+
+
 def _fitted_changes(grid: Grid, bounds: list[tuple[int, int]], changes: list[float], start_ns: int,
                     window_s: float) -> list[float]:
     """Each transition's height change from one fit over the raw trace either side
@@ -185,10 +194,7 @@ def segment_pressure(
     # 0 -> 2 -> 0, against a cluster tolerance of 1 m).
     labels = cluster_visits(changes, cfg.cluster_tolerance_m)
     elevations = solve_elevations(labels, changes)
-    # Ids from 0 = lowest; elevations relative to the start floor (label 0, solved as 0).
-    order = np.argsort(elevations, kind="stable")
-    id_of_label = np.empty_like(order)
-    id_of_label[order] = np.arange(order.shape[0])
+    id_of_label = ids_by_elevation(elevations)
     visit_edges = [int(stamp_ns[0])] + [b for pair in bounds for b in pair] + [int(stamp_ns[-1])]
     visits = [(visit_edges[2 * k], visit_edges[2 * k + 1]) for k in range(len(runs) + 1)]
 

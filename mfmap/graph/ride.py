@@ -31,13 +31,14 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from mfmap.floors.filters import true_runs
+from mfmap.floors.imu import MOTION_M_S2 as CABIN_MOTION_M_S2
+from mfmap.floors.imu import SMOOTH_S as CABIN_SMOOTH_S
 from mfmap.types import F64, ImuSeries
 
-# Smoothing of the vertical specific force used to find when the cabin moves.
-SMOOTH_S = 0.2
-# A cabin accelerating at ~0.5 m/s^2 changes f_up by that much, driving on a level floor hardly
-# at all, so a threshold well between the two finds the ride only.
-MOTION_THRESHOLD_M_S2 = 0.2
+# The smoothing of the vertical specific force and the threshold that find when the cabin moves
+# are the floors stage's, which times the rides with them.
+SMOOTH_S = CABIN_SMOOTH_S
+MOTION_THRESHOLD_M_S2 = CABIN_MOTION_M_S2
 # The cabin starts and stops smoothly: integrate from a little before the first detected
 # acceleration to a little after the last.
 PAD_S = 0.5
