@@ -52,6 +52,7 @@ if TYPE_CHECKING:
     from mfmap.export.cabin import Cabin
     from mfmap.export.mapdata import MapAccumulator
     from mfmap.export.write import FloorTrajectory
+    from mfmap.graph.config import GraphConfig
     from mfmap.graph.optimize import GraphResult
     from mfmap.ingest.colour import ColourCamera
     from mfmap.ingest.depth import Camera
@@ -433,15 +434,11 @@ def optimise(
 
     gravity = gravity_at_keyframes(imu, mapping.keyframes, extrinsics,
                                    odom=odom if cfg.graph.gravity.minus_odometry else None)
-    graph_cfg = cfg.graph
-    if pressure is None and seg.transitions:
-        # Floors from the IMU's rides: their heights are the rides', not a barometer's to fit.
-        graph_cfg = graph_cfg.model_copy(update={
-            "ablation": graph_cfg.ablation.model_copy(update={"transition_height": False})})
+    graph_seg, graph_cfg = graph_floors(seg, pressure, cfg.graph)
     return optimize_building(
         mapping.keyframes,
         mapping.edges,
-        seg if pressure is not None or seg.transitions else None,
+        graph_seg,
         pressure,
         graph_cfg,
         temperature_k=cfg.floors.temperature_k,
@@ -451,6 +448,19 @@ def optimise(
         executor=pool,
         scale_prior_sigma=scale_prior_sigma,
     )
+
+
+def graph_floors(seg: FloorSegmentation, pressure: PressureSeries | None,
+                 cfg: GraphConfig) -> tuple[FloorSegmentation | None, GraphConfig]:
+    """The floors the graph ties together and its configuration for them: none without a
+    barometer unless the IMU's rides made floors, whose heights are then the rides', not a
+    barometer's to fit."""
+    if pressure is not None:
+        return seg, cfg
+    if not seg.transitions:
+        return None, cfg
+    return seg, cfg.model_copy(update={
+        "ablation": cfg.ablation.model_copy(update={"transition_height": False})})
 
 
 def find_depth_cameras(src: LogSource, cfg: MfmapConfig) -> list[Camera]:
@@ -467,4 +477,4 @@ def find_depth_cameras(src: LogSource, cfg: MfmapConfig) -> list[Camera]:
     return cameras
 
 
-__all__ = ["BuildResult", "accumulate", "build", "optimise", "segment_floors"]
+__all__ = ["BuildResult", "accumulate", "build", "graph_floors", "optimise", "segment_floors"]

@@ -22,7 +22,7 @@ from mfmap.graph.floorlinks import median_floor_z
 from mfmap.graph.interfloor import FloorMatch
 from mfmap.graph.optimize import _Sensors, _solve
 from mfmap.logs import WarningCollector
-from mfmap.pipeline import _Floors, _Stages
+from mfmap.pipeline import _Floors, _Stages, graph_floors
 from mfmap.progress import Progress
 from mfmap.types import F64, Keyframe, MappingResult
 
@@ -99,9 +99,9 @@ def solve_log(stages: _Stages, floors: _Floors, mapping: MappingResult,
     for kf in kfs:
         values.insert(X(kf.id), gtsam.Pose3(initial[kf.id]))
     sensors = _Sensors(floors.pressure, cfg.floors.temperature_k, gravity, imu, floors.scale_sigma)
-    seg = floors.seg if floors.pressure is not None else None
+    seg, graph_cfg = graph_floors(floors.seg, floors.pressure, cfg.graph)
     result, iterations, matches, rides, calibration = _solve(
-        builder, values, kfs, mapping.edges, initial, seg, cfg.graph, sensors, stages.pool,
+        builder, values, kfs, mapping.edges, initial, seg, graph_cfg, sensors, stages.pool,
         progress)
     poses = {k.id: np.asarray(result.atPose3(X(k.id)).matrix(), dtype=np.float64) for k in kfs}
     return LogGraph(builder, result, kfs, poses, median_floor_z(kfs, poses), matches, rides,
