@@ -91,6 +91,14 @@ class IcpConfig(BaseModel):
         "the map pull each registration back along the way the robot drives, and the maps come "
         "out short",
     )
+    max_jump_m: float = Field(
+        0.05, ge=0.0,
+        description="off stair walks, a registration that puts the scan further than this "
+        "from the motion prior (wheels and gyro since the last scan) is not taken, up to "
+        "three in a row (0: no limit; none while the robot tips, as stepping off stairs): a "
+        "scan that sees the far face of a thin wall first otherwise slips onto its near face "
+        "in one step, and the map after it with it",
+    )
     facing_surfaces: bool = Field(
         False,
         description="match a scan's points only to map surfaces that face the lidar (the map "
@@ -154,6 +162,13 @@ class StairsConfig(BaseModel):
         description="heading noise of the IMU gyro's turn across a stair walk (its bias "
         "wanders). With a gyro, the walk's turn is the two weighed by their variances and the "
         "scans on the way follow the gyro (0: the registrations' turn)",
+    )
+    max_jump_m: float = Field(
+        0.1, ge=0.0,
+        description="on a stair walk, a registration that puts the scan further than this "
+        "from the motion prior (wheels and gyro since the last scan) is not taken, up to "
+        "three in a row (0: no limit): as the robot tips onto a landing, a registration can "
+        "lock onto steps lower down and drop the climb by a step or two at once",
     )
     walk_margin_s: float = Field(
         2.0, ge=0.0, le=30.0,

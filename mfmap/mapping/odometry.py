@@ -140,6 +140,8 @@ class ScanMatcher:
         self.min_fitness = min_fitness
         self.tolerance = tolerance
         self.failures = 0
+        self.jumps = 0  # registrations left out for moving too far from the motion prior
+        self._jumps_in_a_row = 0
 
     @classmethod
     def from_config(cls, cfg: MappingConfig, local_map: LocalMap,
@@ -152,7 +154,8 @@ class ScanMatcher:
                    fine_kernel_m=cfg.icp.fine_kernel_m)
 
     def match(self, points_base: F64, predicted: F64, gyro_prior: bool = False,
-              gyro_var_rad2: float = 0.0, sensor: F64 | None = None) -> ScanMatch:
+              gyro_var_rad2: float = 0.0, sensor: F64 | None = None,
+              max_jump_m: float = 0.0) -> ScanMatch:
         """Register against the local map from `predicted`; `sensor` is the lidar's position in
         the base frame (only map surfaces facing it are matched, see `LocalMap`).
 
@@ -190,11 +193,26 @@ class ScanMatcher:
             return ScanMatch(predicted, 0.0, 0.0, False)
         result = self._icp(downsample(points_base, self.voxel_m), self.map.target, predicted,
                            sensor)
-        if result.fitness < self.min_fitness:
+        if result.fitness < self.min_fitness or self._jumped(result, predicted, max_jump_m):
             self.failures += 1
             self._propagate(gyro_prior, gyro_var_rad2)
             return ScanMatch(predicted, result.fitness, result.rmse_m, False)
+        self._jumps_in_a_row = 0
         return self._accept(result, predicted, gyro_prior, gyro_var_rad2)
+
+    def _jumped(self, result: Registration, predicted: F64, max_jump_m: float) -> bool:
+        """Whether the registration moved the scan further from the motion prior than the
+        robot can have moved off it since the last scan (`max_jump_m`; 0: no limit), fewer
+        than `max_overruled` times in a row (so a poor prior cannot hold the odometry off
+        the map)."""
+        if max_jump_m <= 0:
+            return False
+        moved = float(np.linalg.norm(result.transform[:3, 3] - predicted[:3, 3]))
+        if moved <= max_jump_m or self._jumps_in_a_row >= self.max_overruled:
+            return False
+        self._jumps_in_a_row += 1
+        self.jumps += 1
+        return True
 
     def _icp(self, source: F64, target: IcpTarget, predicted: F64,
              sensor: F64 | None) -> Registration:

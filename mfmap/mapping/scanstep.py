@@ -26,6 +26,9 @@ from mfmap.mapping.scan2d import Scan2DMatcher
 from mfmap.mapping.standstill import StandStill
 from mfmap.types import F32, F64, I64, Extrinsics
 
+# A change of tilt between scans beyond this (deg): the robot tips, as stepping off stairs.
+TIPPING_DEG = 0.5
+
 
 @dataclass(frozen=True)
 class Sweep:
@@ -151,10 +154,18 @@ class ScanStep:
                 gyro_var = self.motion.heading_var((ref_ns - since_ns) / 1e9,
                                                    rotation_angle_rad(inverse(since_pose) @ predicted))
             facing = sensor if self.cfg.icp.facing_surfaces else None
+            jump = self.cfg.stairs.max_jump_m if on_stairs else self._jump_limit(state, predicted)
             return self.matcher.match(points, predicted, gyro_prior=gyro_prior,
-                                      gyro_var_rad2=gyro_var, sensor=facing)
+                                      gyro_var_rad2=gyro_var, sensor=facing, max_jump_m=jump)
         return self.matcher.match(
             points, predicted, gyro_prior=self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
+
+    def _jump_limit(self, state: TrackState, predicted: F64) -> float:
+        """`icp.max_jump_m`, or no limit while the robot tips (stepping off stairs, over a
+        sill): planar wheels do not follow the ground then, and the prior is centimetres off."""
+        delta = inverse(state.pose) @ predicted
+        tilt = np.degrees(np.arccos(np.clip(delta[2, 2], -1.0, 1.0)))
+        return self.cfg.icp.max_jump_m if tilt < TIPPING_DEG else 0.0
 
     def _settle(self, match: ScanMatch, ref_ns: int, on_stairs: bool) -> F64:
         """The registered pose, its x, y held while the robot turns in place."""

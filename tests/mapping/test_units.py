@@ -133,6 +133,25 @@ def test_gyro_overrules_a_registration_that_turns_the_heading_away() -> None:
     assert gated.overruled == 2
 
 
+def test_a_registration_far_off_the_motion_prior_is_not_taken() -> None:
+    """The prior puts the scan 0.25 m off the room it sees (the truth is the origin): with a
+    limit of 0.1 m the registration that moves it there is left out, up to max_overruled times
+    in a row; without one it is taken; within the limit it is taken."""
+    rng = np.random.default_rng(0)
+    room = _room(rng)
+    predicted = yaw_pose(0.0, np.array([0.25, 0.0, 0.0]))
+    free = _room_matcher(room).match(room, predicted, max_jump_m=0.0)
+    assert free.registered and np.linalg.norm(free.pose[:3, 3]) < 0.01
+    gated = _room_matcher(room, max_overruled=2)
+    kept = [gated.match(room, predicted, max_jump_m=0.1) for _ in range(3)]
+    assert [m.registered for m in kept] == [False, False, True]  # the 3rd in a row is taken
+    np.testing.assert_array_equal(kept[0].pose, predicted)
+    assert np.linalg.norm(kept[2].pose[:3, 3]) < 0.01
+    assert gated.jumps == 2
+    near = _room_matcher(room).match(room, yaw_pose(0.0, np.array([0.05, 0.0, 0.0])), max_jump_m=0.1)
+    assert near.registered and np.linalg.norm(near.pose[:3, 3]) < 0.01
+
+
 def test_gyro_bias_follows_its_drift_between_stand_stills() -> None:
     """The bias wanders 1e-3 rad/s over 300 s: a 180 deg turn right after the second
     stand-still must use the bias measured there, not one averaged over the log."""
