@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor, Future
@@ -408,7 +409,7 @@ def single_floor(start_ns: int, end_ns: int) -> FloorSegmentation:
     stamps = np.array([start_ns, end_ns], dtype=np.int64)
     zeros = np.zeros(2)
     return FloorSegmentation(
-        floors=(Floor(0, 0.0, 0.0, ((start_ns, end_ns),)),),
+        floors=(Floor(0, 0.0, math.nan, ((start_ns, end_ns),)),),
         transitions=(),
         stamp_ns=stamps,
         height_raw_m=zeros,

@@ -7,6 +7,7 @@ memory small, poses float64.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -168,8 +169,12 @@ class Extrinsics:
 class Floor:
     id: int  # 0 = lowest
     elevation_m: float  # relative to the starting floor (z = 0)
-    pressure_pa: float  # typical pressure on this floor
+    pressure_pa: float  # typical pressure on this floor; NaN without a barometer
     visits: tuple[tuple[int, int], ...]  # (start_ns, end_ns) of each visit
+
+    def pressure_json(self) -> float | None:
+        """The pressure as floors.json holds it: null where no barometer measured it."""
+        return round(self.pressure_pa, 2) if math.isfinite(self.pressure_pa) else None
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,9 @@ def test_elevator_ride_without_barometer_builds_floors_from_the_imu(
     # The ride's height is the IMU's: within 2 cm of the truth's 3.5 m.
     assert scores["floors.floor1.elevation_error_m"] < 0.02
     assert scores["points.floor1.rmse_m"] < 0.05
+    # No barometer measured the floors' pressures: null, not a pressure of 0 Pa.
+    floors = json.loads((out / "floors.json").read_text())["floors"]
+    assert len(floors) == 2 and all(f["pressure_pa"] is None for f in floors)
 
 
 def test_find_rides_measures_each_ride(sim_run: Callable[..., Path]) -> None:

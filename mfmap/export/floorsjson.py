@@ -54,7 +54,7 @@ def floors_json(
             {
                 "id": floor.id,
                 "elevation_m": round(elevation_m.get(floor.id, floor.elevation_m), 4),
-                "pressure_pa": round(floor.pressure_pa, 2),
+                "pressure_pa": floor.pressure_json(),
                 "visits": [[s / 1e9, e / 1e9] for s, e in floor.visits],
                 "connectors": [c["id"] for c in connectors if floor.id in c["floors"]],
             }

@@ -148,7 +148,8 @@ def _floors_section(floors_doc: dict[str, Any]) -> list[str]:
     parts = ["<h2>Floors</h2>"]
     parts.append(
         _table(
-            [[f["id"], f["elevation_m"], f["pressure_pa"], len(f["visits"]), f["connectors"]]
+            [[f["id"], f["elevation_m"], "-" if f["pressure_pa"] is None else f["pressure_pa"],
+              len(f["visits"]), f["connectors"]]
              for f in floors_doc["floors"]],
             ["floor", "elevation [m]", "pressure [Pa]", "visits", "connectors"],
         )

@@ -136,7 +136,7 @@ def segmentation_to_json(seg: FloorSegmentation) -> dict[str, Any]:
             {
                 "id": f.id,
                 "elevation_m": round(f.elevation_m, 4),
-                "pressure_pa": round(f.pressure_pa, 2),
+                "pressure_pa": f.pressure_json(),
                 "visits": [[s / 1e9, e / 1e9] for s, e in f.visits],
             }
             for f in seg.floors

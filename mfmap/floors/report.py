@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from rich.console import Group, RenderableType
 from rich.text import Text
 
@@ -30,7 +32,7 @@ def render_floors(seg: FloorSegmentation) -> RenderableType:
     )
     for f in sorted(seg.floors, key=lambda f: -f.elevation_m):
         visits = ", ".join(f"{_rel_s(a, start_ns)}-{_rel_s(b, start_ns)}" for a, b in f.visits)
-        floors.add_row(str(f.id), f"{f.elevation_m:+.2f}", f"{f.pressure_pa:.1f}", visits)
+        floors.add_row(str(f.id), f"{f.elevation_m:+.2f}", f"{f.pressure_pa:.1f}" if math.isfinite(f.pressure_pa) else "-", visits)
     trans = table(
         [
             ("kind", "left"),

@@ -10,6 +10,7 @@ says so).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -39,7 +40,7 @@ def segment_rides(rides: Sequence[tuple[int, int, float]], start_ns: int, end_ns
         for k, (a, b, _) in enumerate(rides)
     )
     floors = tuple(
-        Floor(int(id_of_label[lab]), float(elevations[lab]), 0.0,
+        Floor(int(id_of_label[lab]), float(elevations[lab]), math.nan,
               tuple(v for v_lab, v in zip(labels, visits, strict=True) if v_lab == lab))
         for lab in order
     )
