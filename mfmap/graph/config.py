@@ -173,6 +173,10 @@ class InterfloorConfig(BaseModel):
     max_correction_deg: float = Field(
         20.0, gt=0.0, description="reject a yaw correction larger than this (deg) as implausible"
     )
+    robust_m: float = Field(
+        0.015, ge=0.0, description="the fine ICP weighs a point-to-plane residual of this size (m) "
+        "half (Cauchy), so structure only one floor has pulls little; 0: least squares",
+    )
     sigma_xy_m: float = Field(0.01, gt=0.0, description="inter-floor factor noise in x, y")
     sigma_yaw_deg: float = Field(0.05, gt=0.0, description="inter-floor factor noise in yaw")
 

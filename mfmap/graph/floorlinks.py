@@ -39,7 +39,19 @@ def floor_points(
     floor_z_m: float,
 ) -> np.ndarray:
     """World points of a floor's keyframes within a height band, z made floor-relative."""
-    chunks = []
+    return floor_points_seen(keyframes, poses, floor_id, band_m, floor_z_m)[0]
+
+
+def floor_points_seen(
+    keyframes: Sequence[Keyframe],
+    poses: dict[int, F64],
+    floor_id: int,
+    band_m: tuple[float, float],
+    floor_z_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`floor_points`, and per point the direction it was seen from (towards its keyframe's
+    base): the side of a wall the robot stood on."""
+    chunks, views = [], []
     for kf in keyframes:
         if kf.floor_id != floor_id or len(kf.cloud) == 0:
             continue
@@ -48,11 +60,12 @@ def floor_points(
         rel = pts[:, 2] - floor_z_m
         keep = (rel >= band_m[0]) & (rel <= band_m[1])
         sel = pts[keep]
+        views.append(pose[:3, 3] - sel)
         sel[:, 2] -= floor_z_m
         chunks.append(sel)
     if not chunks:
-        return np.zeros((0, 3))
-    return np.concatenate(chunks)
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(chunks), np.concatenate(views)
 
 
 def median_floor_z(keyframes: Sequence[Keyframe], poses: dict[int, F64]) -> dict[int, float]:
@@ -137,11 +150,11 @@ def add_interfloor(
 ) -> list[FloorMatch]:
     floor_z = median_floor_z(kfs, initial)
     clouds = {
-        f: floor_points(kfs, initial, f, config.interfloor.band_m, floor_z[f]) for f in floor_ids
+        f: floor_points_seen(kfs, initial, f, config.interfloor.band_m, floor_z[f]) for f in floor_ids
     }
-    if any(len(c) < 200 for c in clouds.values()):
+    if any(len(c[0]) < 200 for c in clouds.values()):
         # A 2D scanner's returns all lie at its own height, usually below the band: use them all.
-        clouds = {f: floor_points(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
+        clouds = {f: floor_points_seen(kfs, initial, f, (-1.0, 3.0), floor_z[f]) for f in floor_ids}
     yaw = math.radians(config.interfloor.sigma_yaw_deg)
     sig_xy = config.interfloor.sigma_xy_m
     tilt = LOOSE_TILT_RAD
@@ -152,16 +165,20 @@ def add_interfloor(
         ambiguity_ratio=config.interfloor.ambiguity_ratio,
         max_correction_m=config.interfloor.max_correction_m,
         max_correction_deg=config.interfloor.max_correction_deg,
+        robust_m=config.interfloor.robust_m,
         seed=config.seed,
     )
     pairs = list(itertools.pairwise(floor_ids))
     if executor is not None and len(pairs) > 1:
         # Each pair on its own (one thread per process, the same seed): the same matches.
-        futures = [executor.submit(register, clouds[lower], clouds[upper], lower, upper)
+        futures = [executor.submit(register, clouds[lower][0], clouds[upper][0], lower, upper,
+                                   lower_views=clouds[lower][1], upper_views=clouds[upper][1])
                    for lower, upper in pairs]
         matches = [future.result() for future in futures]
     else:
-        matches = [register(clouds[lower], clouds[upper], lower, upper) for lower, upper in pairs]
+        matches = [register(clouds[lower][0], clouds[upper][0], lower, upper,
+                            lower_views=clouds[lower][1], upper_views=clouds[upper][1])
+                   for lower, upper in pairs]
     for (lower, upper), match in zip(pairs, matches, strict=True):
         if not match.accepted:
             builder.reject("interfloor")

@@ -10,8 +10,10 @@ elevator's prior.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -74,8 +76,13 @@ def _yaw_about(center_xy: F64, yaw: float) -> F64:
     return out
 
 
-def _cloud(points: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
+def _cloud(points: np.ndarray, voxel_m: float, views: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    """Downsampled, with horizontal normals; with `views` (per point, towards where it was seen
+    from) each normal points to the side of its wall the robot stood on."""
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    if views is not None:
+        # Averaged per voxel like the points; estimate_normals then turns each normal to agree.
+        pcd.normals = o3d.utility.Vector3dVector(views.astype(np.float64))
     pcd = pcd.voxel_down_sample(voxel_m)
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=voxel_m * 3.0, max_nn=30))
     # Walls: keep normals horizontal so point-to-plane ICP cannot drift in z or tilt.
@@ -116,15 +123,25 @@ class _Target(IcpTarget):
     """
 
     def icp(self, source: F64, start: F64, max_distance_m: float, tilt: bool = False,
-            iterations: int = 15) -> F64:
+            iterations: int = 15, source_normals: F64 | None = None, robust_m: float = 0.0) -> F64:
         """Point-to-plane ICP from `start` in x, y and yaw; with `tilt` also roll and pitch,
         turned about the source's centre and held near `start`'s by a prior (the clouds are
-        gravity-aligned already). z, which horizontal normals leave free, is held."""
+        gravity-aligned already). z, which horizontal normals leave free, is held.
+
+        With `source_normals` and a target of oriented normals, a point is matched only to a
+        surface seen from the same side: the two faces of a 12 cm inner wall, one seen on each
+        floor, otherwise pull the floors a few centimetres towards each other's face."""
         pose = start.astype(np.float64).copy()
         tilt_weight = len(source) * (TILT_PRIOR_M_PER_DEG / math.radians(1.0)) ** -2
+        facing = source_normals is not None and self.oriented
         for _ in range(iterations):
             moved = source @ pose[:3, :3].T + pose[:3, 3]
             found, idx, _ = self.nearest(moved, max_distance_m)
+            if facing:
+                assert source_normals is not None
+                turned = source_normals[found] @ pose[:3, :3].T
+                same_side = np.einsum("ij,ij->i", turned, self.normals[idx]) > 0.0
+                found, idx = found[same_side], idx[same_side]
             if len(found) < 6:
                 break
             p, q, n = moved[found], self.points[idx], self.normals[idx]
@@ -136,8 +153,11 @@ class _Target(IcpTarget):
                 c = p - pivot
                 columns += [c[:, 1] * n[:, 2] - c[:, 2] * n[:, 1], c[:, 2] * n[:, 0] - c[:, 0] * n[:, 2]]
             jac = np.column_stack(columns)
-            hessian = jac.T @ jac
-            gradient = jac.T @ residual
+            # Cauchy weights: structure only one floor has (rooms, furniture) lies within the
+            # match distance of the other's here and there, and each such pair pulls.
+            weight = 1.0 / (1.0 + (residual / robust_m) ** 2) if robust_m > 0 else np.ones(len(residual))
+            hessian = jac.T @ (jac * weight[:, None])
+            gradient = jac.T @ (residual * weight)
             if tilt:
                 off_level = Rotation.from_matrix(pose[:3, :3] @ start[:3, :3].T).as_rotvec()
                 hessian[3:, 3:] += tilt_weight * np.eye(2)
@@ -182,6 +202,14 @@ def _extrude_flat(points: np.ndarray, layers: int = 5, step_m: float = 0.1) -> n
     return np.concatenate([points + np.array([0.0, 0.0, k * step_m]) for k in range(layers)])
 
 
+def _extrude_views(points: np.ndarray, views: np.ndarray | None, layers: int = 5,
+                   step_m: float = 0.1) -> np.ndarray | None:
+    """The views of `_extrude_flat`'s points (each layer seen from where its point was)."""
+    if views is None or np.ptp(points[:, 2]) > 2 * step_m:
+        return views
+    return np.concatenate([views - np.array([0.0, 0.0, k * step_m]) for k in range(layers)])
+
+
 def _plausible(transform: F64, max_m: float, max_deg: float) -> bool:
     yaw = abs(math.degrees(math.atan2(transform[1, 0], transform[0, 0])))
     return bool(np.hypot(transform[0, 3], transform[1, 3]) <= max_m and yaw <= max_deg)
@@ -198,24 +226,35 @@ def register_floors(
     max_correction_m: float = 2.0,
     max_correction_deg: float = 20.0,
     seed: int = 0,
+    lower_views: np.ndarray | None = None,
+    upper_views: np.ndarray | None = None,
+    robust_m: float = 0.0,
 ) -> FloorMatch:
     """Register the upper floor's band onto the lower floor's (both floor-relative, world x, y).
 
-    Both inputs are (N, 3) points in the world frame with z already made floor-relative.
+    Both inputs are (N, 3) points in the world frame with z already made floor-relative; with
+    both `*_views` (per point, towards where it was seen from) a point is matched only to the
+    same face of a wall.
     """
     if len(lower_points) < 50 or len(upper_points) < 50:
         return FloorMatch(lower, upper, np.eye(4), 0.0, 0.0, 0.0, False, "too few points")
+    oriented = lower_views is not None and upper_views is not None
+    lower_views = _extrude_views(lower_points, lower_views) if oriented else None
+    upper_views = _extrude_views(upper_points, upper_views) if oriented else None
     lower_points, upper_points = _extrude_flat(lower_points), _extrude_flat(upper_points)
     o3d.utility.random.seed(seed)
     reg = o3d.pipelines.registration
-    target = _cloud(lower_points, voxel_m)
-    source = _cloud(upper_points, voxel_m)
+    target = _cloud(lower_points, voxel_m, lower_views)
+    source = _cloud(upper_points, voxel_m, upper_views)
     starts = _starts(_global_guess(source, target, voxel_m))
     coarse = _Target(target.voxel_down_sample(voxel_m * 2.0))
-    fine = _Target(target)
+    fine = _Target(target, oriented=oriented)
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
     fine_source = np.asarray(source.points)
-    candidates = _refine_starts(starts, coarse, fine, coarse_source, fine_source, source, target, voxel_m)
+    fine_normals = np.asarray(source.normals) if oriented else None
+    fine_pass = functools.partial(fine.icp, fine_source, max_distance_m=voxel_m, tilt=True,
+                                  source_normals=fine_normals, robust_m=robust_m)
+    candidates = _refine_starts(starts, coarse, coarse_source, fine_pass, source, target, voxel_m)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
     # rectangular building fits its outer walls but is not a plausible error of the elevator hold.
     plausible = [c for c in candidates if _plausible(c.correction, max_correction_m, max_correction_deg)]
@@ -229,8 +268,7 @@ def register_floors(
     logger.debug("candidates %s", [(round(c.fitness, 3), round(c.sharp_fitness, 3),
                                     np.round(c.correction[:2, 3], 3).tolist()) for c in candidates])
     # The winner's fine pass runs on to convergence (FINE_ITERATIONS in all).
-    pose = fine.icp(fine_source, candidates[0].pose, voxel_m, tilt=True,
-                    iterations=FINE_ITERATIONS - SCORE_ITERATIONS)
+    pose = fine_pass(candidates[0].pose, iterations=FINE_ITERATIONS - SCORE_ITERATIONS)
     best = project_xyyaw(pose)
     score = reg.evaluate_registration(source, target, voxel_m, best)
     best_fitness, best_rmse = float(score.fitness), float(score.inlier_rmse)
@@ -288,14 +326,14 @@ def _starts(global_guess: F64) -> list[F64]:
 def _refine_starts(
     starts: list[F64],
     coarse: _Target,
-    fine: _Target,
     coarse_source: np.ndarray,
-    fine_source: np.ndarray,
+    fine_pass: Callable[..., F64],
     source: Any,
     target: Any,
     voxel_m: float,
 ) -> list[_Candidate]:
-    """Each start through the coarse passes and the fine pass, scored; one candidate per start."""
+    """Each start through the coarse passes and the fine pass (`fine_pass(start, iterations=)`),
+    scored; one candidate per start."""
     reg = o3d.pipelines.registration
     candidates: list[_Candidate] = []
     refined: list[tuple[F64, _Candidate]] = []  # where the coarse passes ended -> candidate
@@ -311,7 +349,7 @@ def _refine_starts(
         # Starts usually meet in the coarse passes: the fine pass and the score once per place.
         done = next((c for at, c in refined if not _distinct(at, current, 1e-3, 1e-3)), None)
         if done is None:
-            pose = fine.icp(fine_source, current, voxel_m, tilt=True, iterations=SCORE_ITERATIONS)
+            pose = fine_pass(current, iterations=SCORE_ITERATIONS)
             best = project_xyyaw(pose)
             score = reg.evaluate_registration(source, target, voxel_m, best)
             sharp = reg.evaluate_registration(source, target, voxel_m / 2.0, best)
