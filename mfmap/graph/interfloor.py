@@ -239,21 +239,16 @@ def register_floors(
     if len(lower_points) < 50 or len(upper_points) < 50:
         return FloorMatch(lower, upper, np.eye(4), 0.0, 0.0, 0.0, False, "too few points")
     oriented = lower_views is not None and upper_views is not None
-    lower_views = _extrude_views(lower_points, lower_views) if oriented else None
-    upper_views = _extrude_views(upper_points, upper_views) if oriented else None
-    lower_points, upper_points = _extrude_flat(lower_points), _extrude_flat(upper_points)
+    target = _band_cloud(lower_points, lower_views if oriented else None, voxel_m)
+    source = _band_cloud(upper_points, upper_views if oriented else None, voxel_m)
     o3d.utility.random.seed(seed)
     reg = o3d.pipelines.registration
-    target = _cloud(lower_points, voxel_m, lower_views)
-    source = _cloud(upper_points, voxel_m, upper_views)
     starts = _starts(_global_guess(source, target, voxel_m))
     coarse = _Target(target.voxel_down_sample(voxel_m * 2.0))
-    fine = _Target(target, oriented=oriented)
     coarse_source = np.asarray(source.voxel_down_sample(voxel_m * 2.0).points)
-    fine_source = np.asarray(source.points)
-    fine_normals = np.asarray(source.normals) if oriented else None
-    fine_pass = functools.partial(fine.icp, fine_source, max_distance_m=voxel_m, tilt=True,
-                                  source_normals=fine_normals, robust_m=robust_m)
+    fine_pass = functools.partial(
+        _Target(target, oriented=oriented).icp, np.asarray(source.points), max_distance_m=voxel_m,
+        tilt=True, source_normals=np.asarray(source.normals) if oriented else None, robust_m=robust_m)
     candidates = _refine_starts(starts, coarse, coarse_source, fine_pass, source, target, voxel_m)
     # Only corrections the mapping stage's prior allows compete: a 180-degree turn of a
     # rectangular building fits its outer walls but is not a plausible error of the elevator hold.
@@ -276,14 +271,23 @@ def register_floors(
         (c.fitness for c in candidates[1:] if _distinct(best, c.correction, 4.0 * voxel_m, 3.0)),
         default=0.0,
     )
-    reason = "ok"
-    accepted = True
-    if best_fitness < min_fitness:
-        accepted, reason = False, f"fitness {best_fitness:.2f} < {min_fitness:.2f}"
-    elif runner_up >= ambiguity_ratio * best_fitness:
-        accepted, reason = False, f"ambiguous: a distinct solution scores {runner_up:.2f} vs {best_fitness:.2f}"
+    accepted, reason = _verdict(best_fitness, runner_up, min_fitness, ambiguity_ratio)
     logger.debug("floors %d/%d: fitness %.3f runner-up %.3f %s", lower, upper, best_fitness, runner_up, reason)
     return FloorMatch(lower, upper, best, best_fitness, best_rmse, runner_up, accepted, reason)
+
+
+def _verdict(fitness: float, runner_up: float, min_fitness: float, ambiguity_ratio: float
+             ) -> tuple[bool, str]:
+    if fitness < min_fitness:
+        return False, f"fitness {fitness:.2f} < {min_fitness:.2f}"
+    if runner_up >= ambiguity_ratio * fitness:
+        return False, f"ambiguous: a distinct solution scores {runner_up:.2f} vs {fitness:.2f}"
+    return True, "ok"
+
+
+def _band_cloud(points: np.ndarray, views: np.ndarray | None, voxel_m: float) -> o3d.geometry.PointCloud:
+    """A floor's band as `_cloud`, a 2D scanner's extruded first."""
+    return _cloud(_extrude_flat(points), voxel_m, _extrude_views(points, views))
 
 
 def _global_guess(source: Any, target: Any, voxel_m: float) -> F64:
