@@ -26,7 +26,7 @@ from mfmap.graph.factors import (
     robust_model,
 )
 from mfmap.graph.interfloor import FloorMatch, register_floors
-from mfmap.types import F64, FloorSegmentation, Keyframe
+from mfmap.types import F64, Keyframe
 
 logger = logging.getLogger(__name__)
 
@@ -115,28 +115,27 @@ def add_height_ties(
         builder.add("height_tie", gtsam.BarometricFactor(X(kf.id), Fl(kf.floor_id), LEVEL_KPA, model), np.eye(1) / sig)
 
 
-def _anchors(
-    kfs: list[Keyframe], lower: int, upper: int, seg: FloorSegmentation | None
-) -> tuple[Keyframe, Keyframe]:
-    """The middle keyframes of the two visits joined by a ride between the floors.
+def _anchors(kfs: list[Keyframe], lower: int, upper: int) -> tuple[Keyframe, Keyframe]:
+    """The middle keyframes of each floor's longest visit.
 
-    Not the keyframes at the ride itself: those are taken in and at the cabin, where the mapping
-    stage's poses are least reliable, and an anchor there would carry its error to the floor.
+    The registration's correction is of the floors' clouds as the graph's first pass placed
+    them, and its longest visit makes most of a floor's cloud: anchored there, the factor ties what
+    was registered. A short visit (back to the start floor by elevator at the end of a log) can
+    sit a few tenths of a degree off the rest of its floor, held only by a loop or two: anchored
+    there, the floors above followed it (0.3-0.5 degrees on the stress set's stairs logs).
+    Not the keyframes at a ride either: those are taken in and at the cabin, where the mapping
+    stage's poses are least reliable.
     """
-    low = [k for k in kfs if k.floor_id == lower]
-    up = [k for k in kfs if k.floor_id == upper]
 
-    def middle_of_visit(cands: list[Keyframe], near_ns: int) -> Keyframe:
-        closest = min(cands, key=lambda k: abs(k.stamp_ns - near_ns))
-        same = [k for k in cands if k.visit == closest.visit]
-        return same[len(same) // 2]
+    def middle_of_longest(floor_id: int) -> Keyframe:
+        visits: dict[int, list[Keyframe]] = {}
+        for k in kfs:
+            if k.floor_id == floor_id:
+                visits.setdefault(k.visit, []).append(k)
+        longest = max(visits.values(), key=len)  # the first of equals: dicts keep their order
+        return longest[len(longest) // 2]
 
-    if seg is not None:
-        for tr in seg.transitions:
-            if {tr.from_floor, tr.to_floor} == {lower, upper}:
-                mid = (tr.start_ns + tr.end_ns) // 2
-                return middle_of_visit(low, mid), middle_of_visit(up, mid)
-    return low[len(low) // 2], up[len(up) // 2]
+    return middle_of_longest(lower), middle_of_longest(upper)
 
 
 def add_interfloor(
@@ -144,7 +143,6 @@ def add_interfloor(
     kfs: list[Keyframe],
     initial: dict[int, F64],
     floor_ids: list[int],
-    seg: FloorSegmentation | None,
     config: GraphConfig,
     executor: Executor | None = None,
 ) -> list[FloorMatch]:
@@ -183,7 +181,7 @@ def add_interfloor(
         if not match.accepted:
             builder.reject("interfloor")
             continue
-        a, b = _anchors(kfs, lower, upper, seg)
+        a, b = _anchors(kfs, lower, upper)
         target_b = match.correction @ initial[b.id]
         measured = relative_level(initial[a.id], target_b, None)
         builder.between(

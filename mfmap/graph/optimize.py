@@ -364,8 +364,7 @@ def _register_and_optimize(
     floor_ids = sorted({k.floor_id for k in kfs if k.floor_id >= 0})
     if config.ablation.inter_floor_registration and len(floor_ids) > 1:
         phase1 = {k.id: np.asarray(result.atPose3(X(k.id)).matrix()) for k in kfs}
-        matches = add_interfloor(builder, kfs, phase1, floor_ids, segmentation, config,
-                                 executor)
+        matches = add_interfloor(builder, kfs, phase1, floor_ids, config, executor)
         for m in matches:
             if not m.accepted:
                 logger.warning("floors %d/%d not registered (%s)", m.lower, m.upper, m.reason)
