@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -81,6 +82,17 @@ def deskew(points: F64, t_offset_s: F64, angular_rad_s: F64, linear_m_s: F64) ->
         out += np.sin(theta)[:, None] * (points @ skew.T)
         out += (1.0 - np.cos(theta))[:, None] * (points @ (skew @ skew).T)
     return out
+
+
+def deskew_measured(points: F64, t_offset_s: F64, rotations: Callable[[F64], F64],
+                    linear_m_s: F64) -> F64:
+    """As `deskew`, the rotation measured rather than assumed constant: `rotations(t)` gives
+    the base at each time t (s from the reference) in the base at the reference time, from the
+    gyro. A robot tipping off a stair turns 20 deg in half a second; a constant rate over the
+    sweep, taken from the motion since the scan before, is degrees off there."""
+    times, index = np.unique(t_offset_s, return_inverse=True)  # one per column of a spinning lidar
+    per_point = rotations(times)[index]
+    return np.einsum("nij,nj->ni", per_point, points) + t_offset_s[:, None] * linear_m_s[None, :]
 
 
 class PoseInterpolator:
@@ -237,6 +249,13 @@ class GyroIntegrator:
             self._recent.pop(next(iter(self._recent)))
         self._recent[stamp_ns] = rotation
         return rotation
+
+    def around(self, ref_ns: int, offsets_s: F64) -> F64:
+        """Rotations (M, 3, 3) of the base at ref_ns + offsets_s in the base at ref_ns."""
+        t0 = (ref_ns - int(self.stamp_ns[0])) / 1e9
+        times = np.clip(t0 + offsets_s, 0.0, self._end_s)
+        ref = self._at(ref_ns).inv()
+        return np.asarray((ref * self._slerp(times)).as_matrix())
 
     def delta(self, start_ns: int, end_ns: int) -> F64:
         """Rotation matrix of the base at end_ns expressed in the base at start_ns."""

@@ -6,12 +6,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from mfmap.mapping.cabin import CabinFilter
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import (
     deskew,
+    deskew_measured,
     inverse,
     rotation_angle_rad,
     transform,
@@ -133,7 +135,7 @@ class ScanStep:
         keep = (rng > self.cfg.min_range_m) & (rng < self.cfg.max_range_m)
         points = self._to_base(frame_id, xyz[keep])
         if len(sweep.offsets_s) and dt > 0:
-            points = deskew(points, sweep.offsets_s[keep] - sweep.ref_offset_s, angular, linear)
+            points = self._deskew(points, sweep, keep, angular, linear)
         sensor = self.origin(frame_id)
         if self.cabin is not None:
             points = self.cabin.apply(points, ref_ns, predicted, sensor)
@@ -141,6 +143,22 @@ class ScanStep:
         pose = self._settle(match, ref_ns, on_stairs)
         return Step(ref_ns, pose, delta, dt, points, match, sweep.ref_offset_s, angular, linear,
                     sensor)
+
+    def _deskew(self, points: F64, sweep: Sweep, keep: npt.NDArray[np.bool_], angular: F64,
+                linear: F64) -> F64:
+        """The points in the base at the sweep's reference time: turned as the gyro measured
+        where it covers the sweep, else by the motion prior's constant twist. A 2D lidar's robot
+        moves in the plane (its prior turns in yaw only): the gyro's tilt would lift its scan
+        out of the plane it maps."""
+        offsets = sweep.offsets_s[keep] - sweep.ref_offset_s
+        gyro = self.motion.gyro
+        if gyro is None or self.planar or not len(offsets):
+            return deskew(points, offsets, angular, linear)
+        start_ns = sweep.ref_ns + round(float(offsets.min()) * 1e9)
+        end_ns = sweep.ref_ns + round(float(offsets.max()) * 1e9)
+        if not (gyro.covers(start_ns) and gyro.covers(end_ns)):
+            return deskew(points, offsets, angular, linear)
+        return deskew_measured(points, offsets, lambda t: gyro.around(sweep.ref_ns, t), linear)
 
     def _match(self, state: TrackState, points: F64, predicted: F64, ref_ns: int,
                on_stairs: bool, sensor: F64) -> ScanMatch:

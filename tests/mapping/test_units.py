@@ -41,6 +41,31 @@ def test_deskew_undoes_a_constant_turn() -> None:
     assert out[0] == pytest.approx([2.0 * np.cos(0.1), 2.0 * np.sin(0.1), 0.0])
 
 
+def test_deskew_with_the_gyro_follows_a_turn_that_speeds_up_within_the_sweep() -> None:
+    """A robot tipping off a stair: its pitch rate grows from 0 to 1.2 rad/s over the 0.1 s
+    sweep. A floor 0.5 m below and 2-8 m ahead, deskewed with the gyro's rotation per point,
+    is where it was; with one rate for the sweep, even its mean, its ends are centimetres off."""
+    from scipy.spatial.transform import Rotation
+
+    from mfmap.mapping.geometry import deskew_measured
+
+    accel = 12.0  # rad/s^2 of pitch
+    t_offset = np.linspace(-0.05, 0.05, 400)
+    ahead = np.linspace(2.0, 8.0, 400)
+    floor = np.column_stack([ahead, np.zeros(400), np.full(400, -0.5)])  # in the base at t = 0
+
+    def rotations(t: np.ndarray) -> np.ndarray:
+        angle = 0.5 * accel * (t + 0.05) ** 2 - 0.5 * accel * 0.05**2  # 0 at the reference
+        return np.asarray(Rotation.from_rotvec(np.outer(angle, [0.0, 1.0, 0.0])).as_matrix())
+
+    measured = np.einsum("nji,nj->ni", rotations(t_offset), floor)  # seen in the base at t
+    assert np.abs(measured[:, 2] + 0.5).max() > 0.05  # the smear
+    fixed = deskew_measured(measured, t_offset, rotations, np.zeros(3))
+    assert np.abs(fixed - floor).max() < 1e-9
+    one_rate = deskew(measured, t_offset, np.array([0.0, accel * 0.05, 0.0]), np.zeros(3))
+    assert np.abs(one_rate[:, 2] + 0.5).max() > 0.05
+
+
 def test_descriptor_finds_the_yaw_between_two_views() -> None:
     rng = np.random.default_rng(0)
     cloud = np.c_[rng.uniform(-10, 10, (4000, 2)), rng.uniform(0.3, 2.0, 4000)]
@@ -330,3 +355,4 @@ def test_rotations_to_chains_the_steps_in_order() -> None:
     for i in range(1, 200):
         current = current @ Rotation.from_rotvec(0.5 * (rate[i] + rate[i - 1]) * 0.005).as_matrix()
         assert np.abs(got[i] - current).max() < 1e-12
+
