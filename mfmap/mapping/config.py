@@ -134,7 +134,9 @@ class OdomEdgeConfig(BaseModel):
     model_config = _SECTION
 
     sigma_m: float = Field(0.01, gt=0.0, description="odometry edge noise per keyframe (m)")
-    sigma_per_m: float = Field(0.005, ge=0.0, description="odometry edge noise growing per metre")
+    sigma_per_m: float = Field(0.005, ge=0.0, description="odometry edge noise growing per metre "
+                               "(across a stair walk, per metre walked: x, y drift with the way "
+                               "along the flights, not with the line between the ends)")
     sigma_deg: float = Field(0.15, gt=0.0, description="odometry edge rotation noise (deg)")
 
 

@@ -46,6 +46,20 @@ class Transitions:
         return float(np.interp(stamp_ns, self.seg.stamp_ns, self.seg.height_filtered_m))
 
 
+def walk_path_m(before: Keyframe, after: Keyframe, scan_poses: list[ScanPose]) -> float:
+    """The distance the odometry travelled from `before` to `after` (the scans between hang on
+    `before`), not the straight line: a switch-back stairwell's walk between two floors is a
+    few metres from end to end and 15-25 m along its flights and landings."""
+    points = [after.pose[:3, 3]]
+    for n in range(len(scan_poses) - 1, -1, -1):
+        sp = scan_poses[n]
+        if sp.keyframe != before.id or sp.stamp_ns <= before.stamp_ns:
+            break
+        points.append((before.pose @ sp.relative)[:3, 3])
+    points.append(before.pose[:3, 3])
+    return float(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1).sum())
+
+
 def walk_heading(cfg: MappingConfig, gyro: GyroIntegrator | None, before: Keyframe,
                  after: Keyframe, measured: F64, scan_poses: list[ScanPose]) -> F64:
     """The relative pose across a stair walk, its turn weighed between the registrations'

@@ -356,3 +356,22 @@ def test_rotations_to_chains_the_steps_in_order() -> None:
         current = current @ Rotation.from_rotvec(0.5 * (rate[i] + rate[i - 1]) * 0.005).as_matrix()
         assert np.abs(got[i] - current).max() < 1e-12
 
+
+def test_a_stair_walks_path_is_the_way_walked_not_the_line_between_its_ends() -> None:
+    """A switch-back walk: up a 4 m flight, across a 1 m landing, back down the lane beside it;
+    2 m from end to end, 9 m walked. Scans of an earlier walk or another keyframe do not count."""
+    from mfmap.mapping.transitions import walk_path_m
+    from mfmap.types import Keyframe, ScanPose
+
+    def pose(x: float, y: float, z: float) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, 3] = [x, y, z]
+        return out
+
+    before = Keyframe(7, 100, 0, 0, pose(1.0, 0.0, 0.0), np.zeros((0, 3), np.float32), 1.0, 0.0)
+    after = Keyframe(8, 200, 1, 1, pose(1.0, 1.0, 3.0), np.zeros((0, 3), np.float32), 1.0, 0.0)
+    way = [(5.0, 0.0, 1.5), (5.0, 1.0, 1.5)]
+    scans = [ScanPose(90, 6, pose(-9.0, 0.0, 0.0)), ScanPose(100, 7, pose(0.0, 0.0, 0.0))]
+    scans += [ScanPose(120 + 10 * i, 7, pose(x - 1.0, y, z)) for i, (x, y, z) in enumerate(way)]
+    assert walk_path_m(before, after, scans) == pytest.approx(2 * np.hypot(4.0, 1.5) + 1.0)
+    assert walk_path_m(before, after, scans[:2]) == pytest.approx(np.hypot(1.0, 3.0))
