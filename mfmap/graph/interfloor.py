@@ -195,19 +195,15 @@ def _distinct(a: F64, b: F64, dist_m: float, yaw_deg: float) -> bool:
     return bool(np.hypot(delta[0, 3], delta[1, 3]) > dist_m or yaw > yaw_deg)
 
 
-def _extrude_flat(points: np.ndarray, layers: int = 5, step_m: float = 0.1) -> np.ndarray:
-    """A planar (2D scanner) cloud as short vertical walls, so normals and FPFH are defined."""
+def _extrude_flat(points: np.ndarray, views: np.ndarray | None, layers: int = 5,
+                  step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray | None]:
+    """A planar (2D scanner) cloud as short vertical walls, so normals and FPFH are defined,
+    with its views (each layer seen from where its point was); other clouds as they are."""
     if np.ptp(points[:, 2]) > 2 * step_m:
-        return points
-    return np.concatenate([points + np.array([0.0, 0.0, k * step_m]) for k in range(layers)])
-
-
-def _extrude_views(points: np.ndarray, views: np.ndarray | None, layers: int = 5,
-                   step_m: float = 0.1) -> np.ndarray | None:
-    """The views of `_extrude_flat`'s points (each layer seen from where its point was)."""
-    if views is None or np.ptp(points[:, 2]) > 2 * step_m:
-        return views
-    return np.concatenate([views - np.array([0.0, 0.0, k * step_m]) for k in range(layers)])
+        return points, views
+    lifts = [np.array([0.0, 0.0, k * step_m]) for k in range(layers)]
+    walls = np.concatenate([points + lift for lift in lifts])
+    return walls, None if views is None else np.concatenate([views - lift for lift in lifts])
 
 
 def _plausible(transform: F64, max_m: float, max_deg: float) -> bool:
@@ -287,7 +283,8 @@ def _verdict(fitness: float, runner_up: float, min_fitness: float, ambiguity_rat
 
 def _band_cloud(points: np.ndarray, views: np.ndarray | None, voxel_m: float) -> o3d.geometry.PointCloud:
     """A floor's band as `_cloud`, a 2D scanner's extruded first."""
-    return _cloud(_extrude_flat(points), voxel_m, _extrude_views(points, views))
+    walls, wall_views = _extrude_flat(points, views)
+    return _cloud(walls, voxel_m, wall_views)
 
 
 def _global_guess(source: Any, target: Any, voxel_m: float) -> F64:
