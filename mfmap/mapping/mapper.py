@@ -17,7 +17,7 @@ from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.mapstats import ScanCounts, mapper_counters, stats
 from mfmap.mapping.motion import MotionModel, TrackState
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
-from mfmap.mapping.posebook import PoseBook, odometry_information
+from mfmap.mapping.posebook import PoseBook, odometry_information, odometry_sigma_m
 from mfmap.mapping.registration import downsample
 from mfmap.mapping.scan2d import Scan2DMatcher
 from mfmap.mapping.scanstep import ScanStep
@@ -181,8 +181,7 @@ class Mapper:
             # x, y drift with the way walked, not the way from end to end: weighed by the
             # straight line, a switch-back walk's 17 cm of drift over 20 m of flights held
             # the floors 7 cm apart against their inter-floor registration.
-            path_m = walk_path_m(previous, kf, self.book.scan_poses)
-            sigma_xy = self.cfg.odom_edge.sigma_m + self.cfg.odom_edge.sigma_per_m * path_m
+            sigma_xy = odometry_sigma_m(self.cfg, walk_path_m(previous, kf, self.book.scan_poses))
             information[3, 3] = min(information[3, 3], sigma_xy**-2)
             information[4, 4] = min(information[4, 4], sigma_xy**-2)
             measured = walk_heading(self.cfg, self.motion.gyro, previous, kf, measured,

@@ -10,10 +10,14 @@ from mfmap.mapping.wheelscale import Run, rescale
 from mfmap.types import F64, Keyframe, PoseEdge, ScanPose
 
 
+def odometry_sigma_m(cfg: MappingConfig, travelled_m: float) -> float:
+    """An odometry edge's position noise after this much travel."""
+    return cfg.odom_edge.sigma_m + cfg.odom_edge.sigma_per_m * travelled_m
+
+
 def odometry_information(cfg: MappingConfig, delta: F64) -> F64:
     """The information matrix of an odometry edge over `delta` (rotation first)."""
-    dist = float(np.linalg.norm(delta[:3, 3]))
-    sig_t = cfg.odom_edge.sigma_m + cfg.odom_edge.sigma_per_m * dist
+    sig_t = odometry_sigma_m(cfg, float(np.linalg.norm(delta[:3, 3])))
     sig_r = np.radians(cfg.odom_edge.sigma_deg)
     return np.diag([1 / sig_r**2] * 3 + [1 / sig_t**2] * 3)
 

@@ -46,16 +46,25 @@ class Transitions:
         return float(np.interp(stamp_ns, self.seg.stamp_ns, self.seg.height_filtered_m))
 
 
+def walk_scans(before: Keyframe, scan_poses: list[ScanPose]) -> range:
+    """Indices into `scan_poses` of the scans after `before` that hang on it: a walk's scans
+    up to the keyframe that ends it (they are the list's last)."""
+    first = len(scan_poses)
+    while first > 0:
+        sp = scan_poses[first - 1]
+        if sp.keyframe != before.id or sp.stamp_ns <= before.stamp_ns:
+            break
+        first -= 1
+    return range(first, len(scan_poses))
+
+
 def walk_path_m(before: Keyframe, after: Keyframe, scan_poses: list[ScanPose]) -> float:
     """The distance the odometry travelled from `before` to `after` (the scans between hang on
     `before`), not the straight line: a switch-back stairwell's walk between two floors is a
     few metres from end to end and 15-25 m along its flights and landings."""
     points = [after.pose[:3, 3]]
-    for n in range(len(scan_poses) - 1, -1, -1):
-        sp = scan_poses[n]
-        if sp.keyframe != before.id or sp.stamp_ns <= before.stamp_ns:
-            break
-        points.append((before.pose @ sp.relative)[:3, 3])
+    points += [(before.pose @ scan_poses[n].relative)[:3, 3]
+               for n in reversed(walk_scans(before, scan_poses))]
     points.append(before.pose[:3, 3])
     return float(np.linalg.norm(np.diff(np.array(points), axis=0), axis=1).sum())
 
@@ -87,10 +96,8 @@ def walk_heading(cfg: MappingConfig, gyro: GyroIntegrator | None, before: Keyfra
     gap = wrap_angle(gyro_heading(after.stamp_ns) - yaw_rad(after.pose))
     weighed = gap * sigma_reg**2 / (sigma_reg**2 + sigma_gyro**2)
     span_ns = after.stamp_ns - before.stamp_ns
-    for n in range(len(scan_poses) - 1, -1, -1):
+    for n in walk_scans(before, scan_poses):
         sp = scan_poses[n]
-        if sp.keyframe != before.id or sp.stamp_ns <= before.stamp_ns:
-            break
         pose = before.pose @ sp.relative
         heading = (gyro_heading(sp.stamp_ns)
                    + (weighed - gap) * (sp.stamp_ns - before.stamp_ns) / span_ns)
