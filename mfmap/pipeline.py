@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Executor, Future
@@ -38,10 +37,8 @@ from mfmap.threads import unlimited_threads
 from mfmap.types import (
     EdgeKind,
     Extrinsics,
-    Floor,
     FloorSegmentation,
     ImuSeries,
-    Keyframe,
     OdomSeries,
     PressureSeries,
     Role,
@@ -100,8 +97,7 @@ def build(
 
         with open_log(log, cfg.ingest) as src, contextlib.ExitStack() as workers:
             stages = _Stages.start(log, src, cfg, progress, collected, workers)
-            floors = stages.floors()
-            mapping = stages.mapping(floors)
+            floors, mapping = stages.mapping(stages.floors())
             pressure_png = stages.pressure_figure(floors.seg)
             graph = stages.graph(mapping, floors)
             trajectory, maps, camera_images = stages.maps(floors.seg, mapping, graph)
@@ -220,31 +216,50 @@ class _Stages:
             self.pool = None  # one floor: mapped in this process, its map by this process
         return _Floors(pressure, seg, stage_cfg, scale_sigma)
 
-    def mapping(self, floors: _Floors) -> MappingResult:
+    def mapping(self, floors: _Floors) -> tuple[_Floors, MappingResult]:
+        """The floors' maps; without a barometer, the floors again from the lidar's stair walks
+        when it climbed within a visit, and the maps of those floors."""
+        from mfmap.floors.nobaro import floors_with_walks
+
+        mapping = self._map(floors.seg)
+        if floors.pressure is None:
+            seg = floors_with_walks(floors.seg, mapping.keyframes, self.src.imu(), self.cfg.floors,
+                                    self.src.start_ns, self.src.end_ns)
+            if seg is not floors.seg:
+                floors = _Floors(None, seg, floors.cfg, floors.scale_sigma)
+                mapping = self._map(seg)  # its warnings, not the first pass's
+            self._refuse_climbs(mapping)
+        for text in mapping.warnings:
+            _mapping_log.warning(text)
+        return floors, mapping
+
+    def _map(self, seg: FloorSegmentation) -> MappingResult:
         from mfmap.mapping import map_floors
 
-        with _timed(self.timings, "mapping"):
-            mapping = map_floors(self.src, floors.seg, self.cfg.mapping, self.extrinsics,
-                                 self.progress, self.pool)
-            for text in mapping.warnings:
-                _mapping_log.warning(text)
+        t0 = time.perf_counter()
+        mapping = map_floors(self.src, seg, self.cfg.mapping, self.extrinsics, self.progress,
+                             self.pool)
+        self.timings["mapping"] = self.timings.get("mapping", 0.0) + time.perf_counter() - t0
         if not mapping.keyframes:
             raise MissingDataError("no keyframes: the lidar gave no usable scans", self.log)
-        if floors.pressure is None:
-            # Per visit: with floors from the IMU's rides, a climb within one is a flight of
-            # stairs the IMU cannot see.
-            visits = sorted({k.visit for k in mapping.keyframes})
-            climbs = (lidar_floor_change([k for k in mapping.keyframes if k.visit == v],
-                                         self.cfg.floors.min_floor_height_m,
-                                         min(k.stamp_ns for k in mapping.keyframes)) for v in visits)
-            climb = next((c for c in climbs if c is not None), None)
-            if climb is not None:
-                raise MissingDataError(
-                    f"no barometer in the log, but the lidar odometry {climb}: the robot changed "
-                    "floors, and a multi-floor map needs the barometer (topic role 'baro')",
-                    self.log,
-                )
         return mapping
+
+    def _refuse_climbs(self, mapping: MappingResult) -> None:
+        """A climb of a floor's height left within one visit (no level to end it on): the floors
+        cannot be told apart."""
+        from mfmap.floors.nobaro import lidar_floor_change
+
+        visits = sorted({k.visit for k in mapping.keyframes})
+        climbs = (lidar_floor_change([k for k in mapping.keyframes if k.visit == v],
+                                     self.cfg.floors.min_floor_height_m,
+                                     min(k.stamp_ns for k in mapping.keyframes)) for v in visits)
+        climb = next((c for c in climbs if c is not None), None)
+        if climb is not None:
+            raise MissingDataError(
+                f"no barometer in the log, and the lidar odometry {climb} with no floor to end "
+                "on: the floors cannot be told apart without the barometer (topic role 'baro')",
+                self.log,
+            )
 
     def pressure_figure(self, seg: FloorSegmentation) -> Future[bytes] | None:
         """report.html's pressure figure, drawn by a worker, idle while this process runs the
@@ -325,21 +340,9 @@ def segment_floors(
     try:
         pressure = src.pressure()
     except MissingDataError:
-        from mfmap.graph.ride import find_rides
+        from mfmap.floors.nobaro import floors_from_rides
 
-        # Inside a closed cabin the lidar cannot see a ride; the accelerometer can.
-        rides = find_rides(src.imu(), cfg.floors.min_floor_height_m)
-        if rides:
-            from mfmap.floors.rides import segment_rides
-
-            logger.warning(
-                "no barometer in the log: floors from the IMU's %d elevator ride(s) alone; a floor "
-                "revisited is recognised by the rides' heights only, and a floor reached by stairs "
-                "is not found", len(rides), extra={"stage": ""})
-            return None, segment_rides([(r.start_ns, r.end_ns, float(r.height_change_m or 0.0)) for r in rides],
-                                       src.start_ns, src.end_ns, cfg.floors)
-        logger.warning("no barometer in the log: building a single-floor map", extra={"stage": ""})
-        return None, single_floor(src.start_ns, src.end_ns)
+        return None, floors_from_rides(src.imu(), src.start_ns, src.end_ns, cfg.floors)
     odom = src.odometry()
     imu = src.imu()
     motion = None
@@ -379,43 +382,6 @@ def check_lidar_density(src: LogSource, cfg: MappingConfig, scans: int = 20) -> 
             f"{cfg.max_range_m:g} m, at least {need} are needed (a radar, or a sensor whose "
             f"returns are all NaN?); mapping.{'min_beams_per_scan' if planar else 'min_points_per_scan'} "
             "sets the limit", src.path)
-
-
-def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float,
-                       start_ns: int | None = None) -> str | None:
-    """What the lidar odometry says about a change of floor in a log without barometer.
-
-    Without a barometer the log is mapped as one floor, which is only right when the robot stayed
-    on it: stairs show up in the lidar odometry as a climb (z is free there). Returns a phrase
-    describing the largest climb or descent of at least `min_floor_height_m`, else None.
-    """
-    kfs = sorted(keyframes, key=lambda k: k.stamp_ns)
-    if len(kfs) < 2:
-        return None
-    z = np.array([k.pose[2, 3] for k in kfs], dtype=np.float64)
-    lo, hi = int(np.argmin(z)), int(np.argmax(z))
-    if z[hi] - z[lo] < min_floor_height_m:
-        return None
-    first, last = sorted((lo, hi))
-    verb = "climbs" if z[last] > z[first] else "descends"
-    origin = kfs[0].stamp_ns if start_ns is None else start_ns
-    t0_s = (kfs[first].stamp_ns - origin) / 1e9
-    t1_s = (kfs[last].stamp_ns - origin) / 1e9
-    return f"{verb} {abs(z[last] - z[first]):.1f} m between {t0_s:.0f} s and {t1_s:.0f} s"
-
-
-def single_floor(start_ns: int, end_ns: int) -> FloorSegmentation:
-    """One floor spanning the whole log (no barometer)."""
-    stamps = np.array([start_ns, end_ns], dtype=np.int64)
-    zeros = np.zeros(2)
-    return FloorSegmentation(
-        floors=(Floor(0, 0.0, math.nan, ((start_ns, end_ns),)),),
-        transitions=(),
-        stamp_ns=stamps,
-        height_raw_m=zeros,
-        height_filtered_m=zeros,
-        floor_of_sample=np.zeros(2, dtype=np.int32),
-    )
 
 
 def optimise(

@@ -1,11 +1,11 @@
-"""Floors from the IMU's elevator rides alone, for a log without a barometer.
+"""Floors from scale-true transitions alone, for a log without a barometer.
 
 Each ride the accelerometer feels (stand-still to stand-still, integrated twice: the graph's
-`find_rides`) is a transition with a scale-true height change, and the visits between them are
-clustered into floors as the barometer's are. What is lost is the barometer's absolute level:
-a floor is recognised on a revisit only by chaining the rides' heights, a centimetre or two of
-error each, so many rides or stair walks the IMU cannot see weaken floor identity (the warning
-says so).
+`find_rides`) and each stair walk the lidar odometry climbs (`mfmap.floors.climbs`) is a
+transition with a scale-true height change, and the visits between them are clustered into
+floors as the barometer's are. What is lost is the barometer's absolute level: a floor is
+recognised on a revisit only by chaining the transitions' heights, a centimetre or a few of
+error each, so many of them weaken floor identity (the warning says so).
 """
 
 from __future__ import annotations
@@ -23,21 +23,21 @@ from mfmap.types import Floor, FloorSegmentation, Transition, TransitionKind
 TRACE_DT_S = 0.1
 
 
-def segment_rides(rides: Sequence[tuple[int, int, float]], start_ns: int, end_ns: int,
-                  cfg: FloorsConfig) -> FloorSegmentation:
-    """Floors and transitions from rides given as (start_ns, end_ns, height change m) in time
-    order, within a log from start_ns to end_ns. The floors' pressure is 0 (not measured)."""
-    changes = [dz for _, _, dz in rides]
+def segment_transitions(rides: Sequence[tuple[int, int, float, TransitionKind]], start_ns: int,
+                        end_ns: int, cfg: FloorsConfig) -> FloorSegmentation:
+    """Floors and transitions from changes given as (start_ns, end_ns, height change m, kind)
+    in time order, within a log from start_ns to end_ns. The floors' pressure is not measured."""
+    changes = [dz for _, _, dz, _ in rides]
     labels = cluster_visits(changes, cfg.cluster_tolerance_m)
     elevations = solve_elevations(labels, changes)
     id_of_label = ids_by_elevation(elevations)
     order = np.argsort(id_of_label)  # labels lowest first
-    edges = [start_ns] + [t for a, b, _ in rides for t in (a, b)] + [end_ns]
+    edges = [start_ns] + [t for a, b, _, _ in rides for t in (a, b)] + [end_ns]
     visits = [(edges[2 * k], edges[2 * k + 1]) for k in range(len(rides) + 1)]
     transitions = tuple(
-        Transition(TransitionKind.ELEVATOR, int(id_of_label[labels[k]]), int(id_of_label[labels[k + 1]]),
+        Transition(kind, int(id_of_label[labels[k]]), int(id_of_label[labels[k + 1]]),
                    a, b, float(elevations[labels[k + 1]] - elevations[labels[k]]))
-        for k, (a, b, _) in enumerate(rides)
+        for k, (a, b, _, kind) in enumerate(rides)
     )
     floors = tuple(
         Floor(int(id_of_label[lab]), float(elevations[lab]), math.nan,

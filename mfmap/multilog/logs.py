@@ -71,8 +71,7 @@ def run_log(index: int, log: Path, src: LogSource, cfg: MfmapConfig, progress: P
     """The floors, the mapping and the log's own graph, as a single-log build runs them."""
     with contextlib.ExitStack() as workers:
         stages = _Stages.start(log, src, cfg, progress, collected, workers)
-        floors = stages.floors()
-        mapping = stages.mapping(floors)
+        floors, mapping = stages.mapping(stages.floors())
         t0 = time.perf_counter()
         graph = solve_log(stages, floors, mapping, progress)
         stages.timings["graph"] = time.perf_counter() - t0

@@ -9,9 +9,9 @@ import numpy as np
 
 from mfmap.export.scans import _deskew, _floor_groups
 from mfmap.export.write import FloorTrajectory
+from mfmap.floors.nobaro import single_floor
 from mfmap.graph.gravity import gravity_at_keyframes
 from mfmap.mapping.cabin import CabinBox, drop_cabins, in_cabin
-from mfmap.pipeline import single_floor
 from mfmap.types import Extrinsics, ImuSeries, Keyframe, OdomSeries
 from tests.graph.synthetic import pose_xyyaw
 
