@@ -83,6 +83,14 @@ class IcpConfig(BaseModel):
         "by their variances (the gyro's angle random walk is measured at the log's "
         "stand-stills); 0: the registration's heading as it is",
     )
+    tilt_share: float = Field(
+        0.2, ge=0.0, le=1.0,
+        description="off stair walks, with the gyro's prediction of a scan's rotation, the share "
+        "of the registration's change of the robot's tilt that is taken (1: all of it): a "
+        "16-beam scan registered against the map tilts as the robot turns (1-1.4 deg after a 90 "
+        "deg turn on the spot), which the gyro does not; the registrations still take out the "
+        "gyro's slow drift",
+    )
     fine_kernel_m: float = Field(
         0.03, ge=0.0,
         description="Tukey kernel of the last ICP pass, at about twice the lidar's range noise: "

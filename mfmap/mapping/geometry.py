@@ -34,6 +34,23 @@ def rotation_angle_rad(pose: F64) -> float:
     return float(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def pull_tilt(pose: F64, towards: F64, share: float) -> F64:
+    """`pose` turned about a horizontal axis of its base so that its tilt (the world's up in its
+    base) keeps `share` of its difference from `towards`'s; its position, and its heading to
+    first order, stay."""
+    up = pose[:3, :3].T[:, 2]  # the world's up in the base
+    target = towards[:3, :3].T[:, 2]
+    axis = np.cross(up, target)
+    sin = float(np.linalg.norm(axis))
+    if sin < 1e-12:
+        return pose
+    angle = math.atan2(sin, float(up @ target))
+    turn = Rotation.from_rotvec(axis / sin * angle * (1.0 - share)).as_matrix()  # up -> towards
+    out = pose.copy()
+    out[:3, :3] = pose[:3, :3] @ turn.T
+    return out
+
+
 def yaw_rad(pose: F64) -> float:
     return float(np.arctan2(pose[1, 0], pose[0, 0]))
 

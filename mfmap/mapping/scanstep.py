@@ -3,7 +3,7 @@ the local map, held in place while the robot turns on the spot."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -15,6 +15,7 @@ from mfmap.mapping.geometry import (
     deskew,
     deskew_measured,
     inverse,
+    pull_tilt,
     rotation_angle_rad,
     transform,
     twist,
@@ -140,6 +141,7 @@ class ScanStep:
         if self.cabin is not None:
             points = self.cabin.apply(points, ref_ns, predicted, sensor)
         match = self._match(state, points, predicted, ref_ns, on_stairs, sensor)
+        match = self._hold_tilt(match, state, predicted, ref_ns, on_stairs)
         pose = self._settle(match, ref_ns, on_stairs)
         return Step(ref_ns, pose, delta, dt, points, match, sweep.ref_offset_s, angular, linear,
                     sensor)
@@ -177,6 +179,17 @@ class ScanStep:
                                       gyro_var_rad2=gyro_var, sensor=facing, max_jump_m=jump)
         return self.matcher.match(
             points, predicted, gyro_prior=self.motion.rotation_from_gyro(state.stamp_ns, ref_ns))
+
+    def _hold_tilt(self, match: ScanMatch, state: TrackState, predicted: F64, ref_ns: int,
+                   on_stairs: bool) -> ScanMatch:
+        """The registration with `icp.tilt_share` of its change of tilt from the gyro's
+        prediction. Not on stairs: the robot tips onto and off the flights there, and held there
+        too, the stress set's 11 walks climbed 4.5 cm RMS off, against 3.9 held off them."""
+        share = self.cfg.icp.tilt_share
+        if (share >= 1.0 or not match.registered or self.planar or on_stairs
+                or not self.motion.rotation_from_gyro(state.stamp_ns, ref_ns)):
+            return match
+        return replace(match, pose=pull_tilt(match.pose, predicted, share))
 
     def _jump_limit(self, state: TrackState, predicted: F64) -> float:
         """`icp.max_jump_m`, or no limit while the robot tips (stepping off stairs, over a

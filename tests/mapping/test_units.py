@@ -9,7 +9,7 @@ import pytest
 
 from mfmap.mapping.cabin import through_box
 from mfmap.mapping.config import LoopsConfig, MappingConfig
-from mfmap.mapping.geometry import deskew, rotations_to, yaw_pose
+from mfmap.mapping.geometry import deskew, pull_tilt, rotations_to, yaw_pose
 from mfmap.mapping.loops import LoopCloser, descriptor_distance, place_descriptor
 from mfmap.mapping.odometry import AdaptiveThreshold, LocalMap, ScanMatcher
 from mfmap.mapping.posegraph import optimize_poses
@@ -39,6 +39,31 @@ def test_deskew_undoes_a_constant_turn() -> None:
     point = np.array([[2.0, 0.0, 0.0]])
     out = deskew(point, np.array([0.1]), np.array([0.0, 0.0, 1.0]), np.zeros(3))
     assert out[0] == pytest.approx([2.0 * np.cos(0.1), 2.0 * np.sin(0.1), 0.0])
+
+
+def test_pulling_a_registered_tilt_towards_the_gyros_keeps_position_and_heading() -> None:
+    from scipy.spatial.transform import Rotation
+
+    def pose(yaw: float, pitch: float, roll: float) -> np.ndarray:
+        p = np.eye(4)
+        p[:3, :3] = Rotation.from_euler("zyx", [yaw, pitch, roll], degrees=True).as_matrix()
+        p[:3, 3] = [1.0, 2.0, 3.0]
+        return p
+
+    def up(p: np.ndarray) -> np.ndarray:
+        return p[:3, :3].T[:, 2]
+
+    registered, predicted = pose(31.0, 1.5, -0.3), pose(30.0, 0.5, 0.2)
+    gap = np.degrees(np.arccos(up(registered) @ up(predicted)))
+    for share in (0.0, 0.2, 1.0):
+        held = pull_tilt(registered, predicted, share)
+        # The tilt keeps `share` of its gap to the prediction's ...
+        left = np.degrees(np.arccos(np.clip(up(held) @ up(predicted), -1.0, 1.0)))
+        assert left == pytest.approx(share * gap, abs=1e-4)
+        # ... the position and the registration's heading stay.
+        assert np.array_equal(held[:3, 3], registered[:3, 3])
+        heading = Rotation.from_matrix(held[:3, :3]).as_euler("zyx", degrees=True)[0]
+        assert heading == pytest.approx(31.0, abs=0.01)
 
 
 def test_deskew_with_the_gyro_follows_a_turn_that_speeds_up_within_the_sweep() -> None:
