@@ -341,8 +341,12 @@ def segment_floors(
         pressure = src.pressure()
     except MissingDataError:
         from mfmap.floors.nobaro import floors_from_rides
+        from mfmap.graph.ride import find_rides
 
-        return None, floors_from_rides(src.imu(), src.start_ns, src.end_ns, cfg.floors)
+        # Inside a closed cabin the lidar cannot see a ride; the accelerometer can.
+        rides = find_rides(src.imu(), cfg.floors.min_floor_height_m)
+        changes = [(r.start_ns, r.end_ns, float(r.height_change_m or 0.0)) for r in rides]
+        return None, floors_from_rides(changes, src.start_ns, src.end_ns, cfg.floors)
     odom = src.odometry()
     imu = src.imu()
     motion = None

@@ -18,21 +18,17 @@ from mfmap.types import Floor, FloorSegmentation, ImuSeries, Keyframe, Transitio
 logger = logging.getLogger(__name__)
 
 
-def floors_from_rides(imu: ImuSeries | None, start_ns: int, end_ns: int,
+def floors_from_rides(rides: Sequence[tuple[int, int, float]], start_ns: int, end_ns: int,
                       cfg: FloorsConfig) -> FloorSegmentation:
-    """The floors of the elevator rides the IMU feels, or one floor when it feels none; with a
-    warning either way (the lidar's stair walks come after the mapping, `floors_with_walks`)."""
-    from mfmap.graph.ride import find_rides
-
-    # Inside a closed cabin the lidar cannot see a ride; the accelerometer can.
-    rides = find_rides(imu, cfg.min_floor_height_m)
+    """The floors of the elevator rides the IMU felt, (start_ns, end_ns, height change m) in
+    time order, or one floor without any; with a warning either way (the lidar's stair walks
+    come after the mapping, `floors_with_walks`)."""
     if rides:
         logger.warning(
             "no barometer in the log: floors from the IMU's %d elevator ride(s); a floor "
             "revisited is recognised by the transitions' heights only",
             len(rides), extra={"stage": ""})
-        changes = [(r.start_ns, r.end_ns, float(r.height_change_m or 0.0), TransitionKind.ELEVATOR)
-                   for r in rides]
+        changes = [(a, b, dz, TransitionKind.ELEVATOR) for a, b, dz in rides]
         return segment_transitions(changes, start_ns, end_ns, cfg)
     logger.warning("no barometer in the log and no elevator ride felt: one floor, unless the "
                    "lidar odometry climbs stairs",
