@@ -7,8 +7,8 @@ into levels (runs of keyframes within `LEVEL_TOLERANCE_M` of each other); a leve
 travels at least `landing_max_path_m` on is a floor, as is where the visit starts and ends
 (held for `END_KEYFRAMES` keyframes: a log that stops on a flight does not end on a floor), and
 a level between is a landing or a floor passed through on the stairs. Two floors in a row whose
-levels differ by at least `min_floor_height_m` are a stair walk between them, from the last
-keyframe on the lower floor to the first on the upper (the IMU's flights refine the span
+levels differ by at least `min_floor_height_m` are a stair walk between them, up or down, from
+the last keyframe on the one to the first on the other (the IMU's flights refine the span
 where it has them); levels closer than that are one floor (a ramp, a sill, a split level).
 
 The robot's height along a floor drifts with the odometry's tilt (a few cm over tens of
@@ -24,8 +24,9 @@ import numpy as np
 
 from mfmap.types import F64, I64
 
-# Keyframes within this of a level's first keyframes are on it (m): the odometry's drift along a
-# floor is centimetres, a flight's keyframes (about 1 m apart along it) half a metre apart in z.
+# Keyframes within this of the median height of a level's keyframes so far are on it (m): the
+# odometry's drift along a floor is centimetres, a flight's keyframes (about 1 m apart along it)
+# half a metre apart in z.
 LEVEL_TOLERANCE_M = 0.25
 # A visit's first and last levels are floors when held for this many keyframes; on a flight
 # each keyframe is a level of its own.
