@@ -8,6 +8,7 @@ folder that looks complete; an existing OUT is replaced only with `force`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import time
 from collections.abc import Iterator, Sequence
@@ -226,7 +227,7 @@ class _Stages:
             seg = floors_with_walks(floors.seg, mapping.keyframes, self.src.imu(), self.cfg.floors,
                                     self.src.start_ns, self.src.end_ns)
             if seg is not floors.seg:
-                floors = _Floors(None, seg, floors.cfg, floors.scale_sigma)
+                floors = dataclasses.replace(floors, seg=seg)
                 mapping = self._map(seg)  # its warnings, not the first pass's
             self._refuse_climbs(mapping)
         for text in mapping.warnings:
@@ -247,13 +248,9 @@ class _Stages:
     def _refuse_climbs(self, mapping: MappingResult) -> None:
         """A climb of a floor's height left within one visit (no level to end it on): the floors
         cannot be told apart."""
-        from mfmap.floors.nobaro import lidar_floor_change
+        from mfmap.floors.nobaro import climb_left
 
-        visits = sorted({k.visit for k in mapping.keyframes})
-        climbs = (lidar_floor_change([k for k in mapping.keyframes if k.visit == v],
-                                     self.cfg.floors.min_floor_height_m,
-                                     min(k.stamp_ns for k in mapping.keyframes)) for v in visits)
-        climb = next((c for c in climbs if c is not None), None)
+        climb = climb_left(mapping.keyframes, self.cfg.floors.min_floor_height_m)
         if climb is not None:
             raise MissingDataError(
                 f"no barometer in the log, and the lidar odometry {climb} with no floor to end "

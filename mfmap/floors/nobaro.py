@@ -43,8 +43,7 @@ def floors_with_walks(seg: FloorSegmentation, keyframes: Sequence[Keyframe], imu
     when there is no walk. The IMU's flights, where it has them, time each walk."""
     timing = ImuTiming.of(imu)
     walks = []
-    for visit in sorted({k.visit for k in keyframes}):
-        kfs = sorted((k for k in keyframes if k.visit == visit), key=lambda k: k.stamp_ns)
+    for kfs in by_visit(keyframes):
         stamps = np.array([k.stamp_ns for k in kfs], dtype=np.int64)
         xyz = np.array([k.pose[:3, 3] for k in kfs], dtype=np.float64)
         for a, b, dz in stair_walks(stamps, xyz, cfg.min_floor_height_m,
@@ -63,26 +62,33 @@ def floors_with_walks(seg: FloorSegmentation, keyframes: Sequence[Keyframe], imu
     return segment_transitions(changes, start_ns, end_ns, cfg)
 
 
-def lidar_floor_change(keyframes: Sequence[Keyframe], min_floor_height_m: float,
-                       start_ns: int | None = None) -> str | None:
-    """What the lidar odometry says about a change of floor within one visit of a log without
-    barometer: stairs show up as a climb (z is free there), and a visit is one floor only when
-    no climb is left in it. Returns a phrase describing the largest climb or descent of at least
-    `min_floor_height_m`, else None.
-    """
-    kfs = sorted(keyframes, key=lambda k: k.stamp_ns)
-    if len(kfs) < 2:
+def by_visit(keyframes: Sequence[Keyframe]) -> list[list[Keyframe]]:
+    """The keyframes of each visit in time order, the visits in their order."""
+    visits: dict[int, list[Keyframe]] = {}
+    for k in sorted(keyframes, key=lambda k: k.stamp_ns):
+        visits.setdefault(k.visit, []).append(k)
+    return [visits[v] for v in sorted(visits)]
+
+
+def climb_left(keyframes: Sequence[Keyframe], min_floor_height_m: float) -> str | None:
+    """What the lidar odometry says about a change of floor left within one visit of a log
+    without barometer: stairs show up as a climb (z is free there), and a visit is one floor
+    only when no climb is left in it. A phrase describing the first visit's largest climb or
+    descent of at least `min_floor_height_m` (times from the first keyframe), else None."""
+    if not keyframes:
         return None
-    z = np.array([k.pose[2, 3] for k in kfs], dtype=np.float64)
-    lo, hi = int(np.argmin(z)), int(np.argmax(z))
-    if z[hi] - z[lo] < min_floor_height_m:
-        return None
-    first, last = sorted((lo, hi))
-    verb = "climbs" if z[last] > z[first] else "descends"
-    origin = kfs[0].stamp_ns if start_ns is None else start_ns
-    t0_s = (kfs[first].stamp_ns - origin) / 1e9
-    t1_s = (kfs[last].stamp_ns - origin) / 1e9
-    return f"{verb} {abs(z[last] - z[first]):.1f} m between {t0_s:.0f} s and {t1_s:.0f} s"
+    origin = min(k.stamp_ns for k in keyframes)
+    for kfs in by_visit(keyframes):
+        z = np.array([k.pose[2, 3] for k in kfs], dtype=np.float64)
+        lo, hi = int(np.argmin(z)), int(np.argmax(z))
+        if z[hi] - z[lo] < min_floor_height_m:
+            continue
+        first, last = sorted((lo, hi))
+        verb = "climbs" if z[last] > z[first] else "descends"
+        t0_s = (kfs[first].stamp_ns - origin) / 1e9
+        t1_s = (kfs[last].stamp_ns - origin) / 1e9
+        return f"{verb} {abs(z[last] - z[first]):.1f} m between {t0_s:.0f} s and {t1_s:.0f} s"
+    return None
 
 
 def single_floor(start_ns: int, end_ns: int) -> FloorSegmentation:
