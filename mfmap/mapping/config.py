@@ -191,6 +191,13 @@ class StairsConfig(BaseModel):
         description="after stairs, level the pose by the mean accelerometer over this long "
         "(0: off)",
     )
+    hold_tilt_level_deg: float = Field(
+        4.0, ge=0.0, le=15.0,
+        description="on a stair walk, a scan whose base stands within this of level for a "
+        "second either side (the accelerometer) is on a landing or a floor passed through: its "
+        "tilt is held to the gyro's as on a floor (`icp.tilt_share`), since a stairwell's walls "
+        "and a few steps let the registration's tilt wander (0: never held on a walk)",
+    )
 
 
 class LoopsConfig(BaseModel):

@@ -400,3 +400,31 @@ def test_a_stair_walks_path_is_the_way_walked_not_the_line_between_its_ends() ->
     scans += [ScanPose(120 + 10 * i, 7, pose(x - 1.0, y, z)) for i, (x, y, z) in enumerate(way)]
     assert walk_path_m(before, after, scans) == pytest.approx(2 * np.hypot(4.0, 1.5) + 1.0)
     assert walk_path_m(before, after, scans[:2]) == pytest.approx(np.hypot(1.0, 3.0))
+
+
+def test_a_base_stands_level_only_a_second_away_from_any_tip() -> None:
+    """Level for 10 s, then tipped 22 deg onto a flight within 0.4 s (with the accelerometer's
+    noise and a 0.3 m/s^2 braking): level until a second before the tip starts, not within a
+    second of it, nor on the flight; never without an accelerometer or with the limit at 0."""
+    from mfmap.mapping.config import MotionPrior
+    from mfmap.mapping.motion import MotionModel
+    from mfmap.types import ImuSeries
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 20.0, 0.005)
+    pitch = np.radians(22.0) * np.clip((t - 10.0) / 0.4, 0.0, 1.0)
+    accel = np.column_stack([-9.81 * np.sin(pitch), np.zeros(len(t)), 9.81 * np.cos(pitch)])
+    accel[(t > 3.0) & (t < 4.0), 0] -= 0.3
+    accel += rng.normal(0.0, 0.03, accel.shape)
+    stamps = (1_000_000_000 + np.round(t * 1e9)).astype(np.int64)
+    imu = ImuSeries(stamps, np.zeros((len(t), 3)), accel, np.full((len(t), 4), np.nan))
+    motion = MotionModel(MotionPrior.AUTO, None, imu, {})
+
+    def level(at_s: float, max_deg: float = 4.0) -> bool:
+        return motion.stands_level(int(stamps[0] + at_s * 1e9), 1_000_000_000, max_deg)
+
+    assert level(3.5) and level(8.9)
+    assert not level(9.2) and not level(10.2) and not level(15.0)
+    assert not level(5.0, max_deg=0.0)
+    assert not MotionModel(MotionPrior.AUTO, None, None, {}).stands_level(int(stamps[0] + 5e9),
+                                                                       1_000_000_000, 4.0)
