@@ -225,6 +225,15 @@ class LoopsConfig(BaseModel):
     min_information_ratio: float = Field(
         0.02, ge=0.0, le=1.0, description="smallest/largest eigenvalue of the loop's translation information"
     )
+    both_ways: bool = Field(
+        True, description="verify a loop the other way round too (what one place saw and the other "
+        "did not pulls a registration one way only)",
+    )
+    agreement_m: float = Field(
+        0.02, gt=0.0,
+        description="the loop registered the other way round must pass the same checks and "
+        "agree within this",
+    )
     max_correction_m: float = Field(
         1.0, gt=0.0, description="reject a loop that moves the keyframe more than this from odometry"
     )

@@ -27,7 +27,8 @@ class ScanCounts:
 LOOP_COUNTERS = {"loop_candidates": "candidates", "loop_rejected_fitness": "rejected_fitness",
                  "loop_rejected_ambiguous": "rejected_ambiguous",
                  "loop_rejected_degenerate": "rejected_degenerate",
-                 "loop_rejected_implausible": "rejected_implausible"}
+                 "loop_rejected_implausible": "rejected_implausible",
+                 "loop_rejected_one_way": "rejected_one_way"}
 
 
 def loop_counters(loops: LoopCloser) -> dict[str, float]:
