@@ -179,6 +179,11 @@ class InterfloorConfig(BaseModel):
     )
     sigma_xy_m: float = Field(0.01, gt=0.0, description="inter-floor factor noise in x, y")
     sigma_yaw_deg: float = Field(0.05, gt=0.0, description="inter-floor factor noise in yaw")
+    anchors: int = Field(
+        8, ge=1, le=1000, description="keyframe pairs that share a registration's factor (its "
+        "sigmas grow by the root of their number): the registration places the floors' whole "
+        "clouds, not one keyframe's local pose",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> InterfloorConfig:

@@ -92,7 +92,9 @@ def test_factor_counts(building: SyntheticBuilding, full: GraphResult) -> None:
     assert stats["transition_z"].count == 2
     assert stats["odometry"].count == sum(1 for e in building.edges if e.kind == "odometry")
     assert stats["loop"].count == sum(1 for e in building.edges if e.kind == "loop")
-    assert stats["interfloor"].count == 1 and stats["interfloor"].rejected == 0
+    # One registration, shared by keyframe pairs across the floors.
+    assert stats["interfloor"].count == GraphConfig().interfloor.anchors
+    assert stats["interfloor"].rejected == 0
     assert full.error_final < 0.05 * full.error_initial
 
 
@@ -280,3 +282,38 @@ def test_floor_pairs_registered_in_worker_processes_give_the_same_graph(tmp_path
     assert result["accepted"] == [True, True]
     assert result["same_matches"]
     assert result["max_pose_diff"] == 0.0
+
+
+def test_a_floor_registration_is_shared_by_pairs_across_the_floors() -> None:
+    """Keyframes on a 20 x 10 m loop per floor (two visits below, one above): the pairs spread
+    over the lower floor, each with the upper keyframe above it once registered, none at the
+    ends of a visit (where the cabin is)."""
+    from mfmap.graph.floorlinks import _anchor_pairs
+    from mfmap.types import Keyframe
+
+    def lap(n: int) -> list[tuple[float, float]]:
+        s = np.linspace(0.0, 60.0, n, endpoint=False)
+        return [(min(v, 20.0) - max(v - 30.0, 0.0) if v < 50 else 0.0,
+                 min(max(v - 20.0, 0.0), 10.0) - max(v - 50.0, 0.0)) for v in s]
+
+    kfs: list[Keyframe] = []
+    for visit, (floor, n) in enumerate([(0, 40), (1, 30), (0, 10)]):
+        for x, y in lap(n):
+            pose = np.eye(4)
+            pose[:3, 3] = (x, y, 4.0 * floor)
+            kfs.append(Keyframe(len(kfs), len(kfs), floor, visit, pose, np.zeros((0, 3), np.float32), 1.0, 0.0))
+    correction = np.eye(4)
+    correction[:2, 3] = (0.3, -0.2)  # the registration moves the upper floor by this
+    # the upper floor's map as the graph's first pass placed it: off by the correction's inverse
+    initial = {k.id: (np.linalg.inv(correction) @ k.pose if k.floor_id == 1 else k.pose) for k in kfs}
+    pairs = _anchor_pairs(kfs, initial, 0, 1, correction, 8)
+    assert 6 <= len(pairs) <= 8
+    ends = {k.id for v in range(3) for k in [k for k in kfs if k.visit == v][:2] + [k for k in kfs if k.visit == v][-2:]}
+    assert not ends & {k.id for pair in pairs for k in pair}
+    lower_xy = np.array([initial[a.id][:2, 3] for a, _ in pairs])
+    assert np.ptp(lower_xy[:, 0]) > 10.0 and np.ptp(lower_xy[:, 1]) > 5.0  # spread over the floor
+    for a, b in pairs:
+        above = (correction @ initial[b.id])[:2, 3]
+        assert np.linalg.norm(above - initial[a.id][:2, 3]) < 1.5  # one above the other
+    # One pair: the middle keyframes of each floor's longest visit.
+    assert [(a.id, b.id) for a, b in _anchor_pairs(kfs, initial, 0, 1, correction, 1)] == [(20, 55)]
