@@ -30,6 +30,9 @@ from mfmap.types import F64, Keyframe
 
 logger = logging.getLogger(__name__)
 
+ABOVE_M = 2.0  # an inter-floor anchor pair's keyframes lie this close in x, y or closer
+MIN_PAIRS = 3
+
 
 def floor_points(
     keyframes: Sequence[Keyframe],
@@ -140,16 +143,19 @@ def _anchors(kfs: list[Keyframe], lower: int, upper: int) -> tuple[Keyframe, Key
 
 def _anchor_pairs(kfs: list[Keyframe], initial: dict[int, F64], lower: int, upper: int,
                   correction: F64, count: int) -> list[tuple[Keyframe, Keyframe]]:
-    """`count` keyframes spread over the lower floor's visits, each with the upper floor's
-    keyframe nearest it once registered; one pair: `_anchors`.
+    """Up to `count` pairs of keyframes one above the other (within `ABOVE_M` once
+    registered), spread over the lower floor's keyframes that have one; `_anchors`' pair
+    where fewer than `MIN_PAIRS` such pairs exist (nothing to average), or for `count` 1.
 
     The registration places one floor's whole cloud on the other's, and a floor's map bends
     a little between loops: gen-stairs-s11's start floor came out turned 0.12 deg at the far
     end of a 26 m corridor, where the middle keyframe of its longest visit is, and its upper
     floors followed that keyframe (0.15-0.19 deg, 4-6 cm at their checkpoints). Shared by
-    keyframes across the floor, the factor holds the floors' average pose. Pairs one above
-    the other keep a keyframe's local turn from moving the other by a long lever; the ends of
-    visits are left out as in `_anchors`.
+    keyframes across the floor, the factor holds the floors' average pose. One above the
+    other, so that a keyframe's local turn does not move its partner by a lever: paired with
+    the nearest upper keyframe wherever it was, the `stairs` log's floors (whose routes meet
+    only near the stairwell) tied one upper keyframe to eight lower ones 3-20 m away and came
+    out turned 0.1 deg more. The ends of visits and short visits are left out, as in `_anchors`.
     """
     if count == 1:
         return [_anchors(kfs, lower, upper)]
@@ -159,20 +165,23 @@ def _anchor_pairs(kfs: list[Keyframe], initial: dict[int, F64], lower: int, uppe
         for k in kfs:
             if k.floor_id == floor_id:
                 visits.setdefault(k.visit, []).append(k)
-        kept = [k for v in visits.values() for k in (v[2:-2] if len(v) > 6 else v)]
-        return kept or [k for v in visits.values() for k in v]
+        return [k for v in visits.values() if len(v) > 6 for k in v[2:-2]]
 
-    lows, ups = inside(lower), inside(upper)
+    ups = inside(upper)
     up_xy = np.array([(correction @ initial[k.id])[:2, 3] for k in ups])
+    below: list[tuple[Keyframe, Keyframe]] = []
+    for a in inside(lower):
+        apart = np.linalg.norm(up_xy - initial[a.id][:2, 3], axis=1)
+        if apart.min() <= ABOVE_M:
+            below.append((a, ups[int(np.argmin(apart))]))
     pairs: list[tuple[Keyframe, Keyframe]] = []
-    seen: set[tuple[int, int]] = set()
-    for i in range(min(count, len(lows))):
-        a = lows[int((i + 0.5) * len(lows) / min(count, len(lows)))]
-        b = ups[int(np.argmin(np.linalg.norm(up_xy - initial[a.id][:2, 3], axis=1)))]
-        if (a.id, b.id) not in seen:
-            seen.add((a.id, b.id))
+    taken: set[int] = set()
+    for i in range(min(count, len(below))):
+        a, b = below[int((i + 0.5) * len(below) / min(count, len(below)))]
+        if b.id not in taken:
+            taken.add(b.id)
             pairs.append((a, b))
-    return pairs
+    return pairs if len(pairs) >= MIN_PAIRS else [_anchors(kfs, lower, upper)]
 
 
 def add_interfloor(
