@@ -168,6 +168,8 @@ def _anchor_pairs(kfs: list[Keyframe], initial: dict[int, F64], lower: int, uppe
         return [k for v in visits.values() if len(v) > 6 for k in v[2:-2]]
 
     ups = inside(upper)
+    if not ups:  # only short visits above: nothing away from the cabin to pair with
+        return [_anchors(kfs, lower, upper)]
     up_xy = np.array([(correction @ initial[k.id])[:2, 3] for k in ups])
     below: list[tuple[Keyframe, Keyframe]] = []
     for a in inside(lower):

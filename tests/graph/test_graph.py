@@ -321,3 +321,6 @@ def test_a_floor_registration_is_shared_by_pairs_across_the_floors() -> None:
     away[:2, 3] = (40.0, 0.0)  # the upper floor's route 20 m beyond the lower one's
     apart = {i: (away @ p if next(k for k in kfs if k.id == i).floor_id == 1 else p) for i, p in initial.items()}
     assert [(a.id, b.id) for a, b in _anchor_pairs(kfs, apart, 0, 1, correction, 8)] == [(20, 55)]
+    # Only a short visit above (six keyframes or fewer): the one pair.
+    short = [k for k in kfs if k.floor_id == 0 or k.id < 40 + 6]
+    assert [(a.id, b.id) for a, b in _anchor_pairs(short, initial, 0, 1, correction, 8)] == [(20, 43)]
