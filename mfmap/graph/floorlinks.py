@@ -14,6 +14,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from mfmap.floors.nobaro import by_visit
 from mfmap.graph.config import GraphConfig
 from mfmap.graph.factors import (
     FREE_SIGMA,
@@ -32,6 +33,8 @@ logger = logging.getLogger(__name__)
 
 ABOVE_M = 2.0  # an inter-floor anchor pair's keyframes lie this close in x, y or closer
 MIN_PAIRS = 3
+SHORT_VISIT = 6  # keyframes: a visit this short gives no inter-floor anchor pair
+VISIT_END = 2  # keyframes at each end of a visit (in and at the cabin) given none either
 
 
 def floor_points(
@@ -118,6 +121,10 @@ def add_height_ties(
         builder.add("height_tie", gtsam.BarometricFactor(X(kf.id), Fl(kf.floor_id), LEVEL_KPA, model), np.eye(1) / sig)
 
 
+def _visits(kfs: list[Keyframe], floor_id: int) -> list[list[Keyframe]]:
+    return by_visit([k for k in kfs if k.floor_id == floor_id])
+
+
 def _anchors(kfs: list[Keyframe], lower: int, upper: int) -> tuple[Keyframe, Keyframe]:
     """The middle keyframes of each floor's longest visit.
 
@@ -131,11 +138,7 @@ def _anchors(kfs: list[Keyframe], lower: int, upper: int) -> tuple[Keyframe, Key
     """
 
     def middle_of_longest(floor_id: int) -> Keyframe:
-        visits: dict[int, list[Keyframe]] = {}
-        for k in kfs:
-            if k.floor_id == floor_id:
-                visits.setdefault(k.visit, []).append(k)
-        longest = max(visits.values(), key=len)  # the first of equals: dicts keep their order
+        longest = max(_visits(kfs, floor_id), key=len)  # the first of equals
         return longest[len(longest) // 2]
 
     return middle_of_longest(lower), middle_of_longest(upper)
@@ -161,11 +164,8 @@ def _anchor_pairs(kfs: list[Keyframe], initial: dict[int, F64], lower: int, uppe
         return [_anchors(kfs, lower, upper)]
 
     def inside(floor_id: int) -> list[Keyframe]:
-        visits: dict[int, list[Keyframe]] = {}
-        for k in kfs:
-            if k.floor_id == floor_id:
-                visits.setdefault(k.visit, []).append(k)
-        return [k for v in visits.values() if len(v) > 6 for k in v[2:-2]]
+        return [k for v in _visits(kfs, floor_id) if len(v) > SHORT_VISIT
+                for k in v[VISIT_END:-VISIT_END]]
 
     ups = inside(upper)
     if not ups:  # only short visits above: nothing away from the cabin to pair with

@@ -204,13 +204,16 @@ class LoopCloser:
         A single sparse scan gives a loop a rotation error of several tenths of a degree;
         a few neighbours (placed by the locally accurate odometry) make the target dense.
         """
-        kept = self._keyframes if newest is None else {**self._keyframes, newest.id: newest}
-        center = kept[center_id]
+        def kept(k: int) -> Keyframe | None:
+            return newest if newest is not None and k == newest.id else self._keyframes.get(k)
+
+        center = kept(center_id)
+        assert center is not None
         to_center = inverse(center.pose)
         parts = []
         for k in range(center_id - self.cfg.loops.submap_keyframes,
                        center_id + self.cfg.loops.submap_keyframes + 1):
-            other = kept.get(k)
+            other = kept(k)
             if other is None or other.visit != center.visit:
                 continue
             rel = to_center @ other.pose
