@@ -228,9 +228,11 @@ def clean_stale(parent: Path) -> list[str]:
 
 
 def _mark(folder: Path, owner: bool) -> None:
-    (folder / MARKER).write_text(MARKER_TEXT)
+    # The owner before the marker: a partial folder with the marker and no owner is a killed
+    # build's to every build starting beside it (`clean_stale`), which would remove this one.
     if owner:
         (folder / OWNER).write_text(_owner_text())
+    (folder / MARKER).write_text(MARKER_TEXT)
 
 
 # ----- the run folder ------------------------------------------------------------------------------

@@ -235,3 +235,24 @@ def test_a_disk_that_fills_during_the_build_is_one_line(tmp_path: Path) -> None:
         assert (disk / "keep.txt").read_text() == "mine"
     finally:
         subprocess.run(["umount", str(disk)], check=True)
+
+
+_CREATE_MANY = """
+import sys
+from pathlib import Path
+from mfmap.runfolder import RunFolder
+parent = Path(sys.argv[1])
+for i in range(int(sys.argv[3])):
+    RunFolder.create(parent / f"{sys.argv[2]}-{i}").discard()
+"""
+
+
+def test_builds_started_together_in_one_folder_leave_each_other_alone(tmp_path: Path) -> None:
+    # Every build cleans the partial folders that killed builds left beside its output; one
+    # that is being made must not look killed to a build starting next to it (a pipeline
+    # starts its builds together in one folder).
+    procs = [subprocess.Popen([sys.executable, "-c", _CREATE_MANY, str(tmp_path), f"b{k}", "40"],
+                              stderr=subprocess.PIPE, text=True) for k in range(6)]
+    errors = [p.communicate(timeout=120)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0] * len(procs), errors
+    assert list(tmp_path.iterdir()) == []
