@@ -37,7 +37,7 @@ from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, yaw_pose, yaw_rad
 from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.mapper import Mapper
-from mfmap.mapping.mapstats import loop_counters, stats
+from mfmap.mapping.mapstats import MAX_COUNTERS, loop_counters, stats
 from mfmap.mapping.motion import MotionModel
 from mfmap.mapping.source import LogOpener, LogSourceLike, read_scans
 from mfmap.mapping.timeline import Timeline
@@ -248,7 +248,7 @@ class _Merge:
                                    for ns, pose in part.pending)
         self.held, self.held_ns = frame @ part.held, part.held_ns
         for name, value in part.counters.items():
-            combine = max if name == "max_local_map_points" else (lambda a, b: a + b)
+            combine = max if name in MAX_COUNTERS else (lambda a, b: a + b)
             self.counters[name] = combine(self.counters.get(name, 0.0), value)
         self.warnings += [w for w in part.warnings if w not in self.warnings]
 

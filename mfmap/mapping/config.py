@@ -186,6 +186,17 @@ class StairsConfig(BaseModel):
         "it (s): the approach to the first step and the step off the last are mapped as stairs, "
         "every scan registered and the heading free, not as the floor's",
     )
+    climb_registrations: int = Field(
+        3, ge=1, le=8,
+        description="registrations of each stair walk's scans whose climbs are averaged for the "
+        "floor reached: the odometry's and copies of it at other scan voxels (1: the "
+        "odometry's alone). Each costs the walk's registration time again",
+    )
+    climb_voxel_spread: float = Field(
+        0.05, gt=0.0, le=0.3,
+        description="how far apart the copies' scan voxels are, as a share of `voxel_size_m` "
+        "(alternately above and below it)",
+    )
     level_window_s: float = Field(
         10.0, le=3600.0, ge=0.0,
         description="after stairs, level the pose by the mean accelerometer over this long "

@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from mfmap.mapping.cabin import CabinFilter
+from mfmap.mapping.climb import ClimbFollower, needs_keyframe
 from mfmap.mapping.config import MappingConfig
-from mfmap.mapping.geometry import inverse, rotation_angle_rad
+from mfmap.mapping.geometry import inverse
 from mfmap.mapping.loops import LoopCloser
 from mfmap.mapping.mapstats import ScanCounts, mapper_counters, stats
 from mfmap.mapping.motion import MotionModel, TrackState
@@ -67,6 +68,8 @@ class Mapper:
         self.step = ScanStep(cfg, extrinsics, motion, planar, self.matcher, self.cabin, self.counts)
         # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
         self.wheels = RunScale(cfg.motion.odom_scale_min_m)
+        # A stair walk's climb registered again and averaged (`climb`).
+        self.climb = ClimbFollower(cfg, planar)
         if motion.source != "odometry" and cfg.cabin.filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions
         ):
@@ -82,6 +85,7 @@ class Mapper:
         segment = self.timeline.at(stamp_ns)
         state = self.state
         if segment.kind == SegmentKind.RIDE:
+            self.climb.drop()
             self._ride_scan(stamp_ns, segment)
             return
         if segment.kind == SegmentKind.VISIT and segment.visit != state.visit:
@@ -90,6 +94,8 @@ class Mapper:
         has_times = t_offset_ns is not None and len(t_offset_ns) == len(xyz) and len(xyz) > 0
         stride = self.cfg.scan_stride_2d if self.planar else self.cfg.scan_stride
         on_stairs = self.transitions.on_stairs_at(stamp_ns)
+        self.climb.follow(on_stairs, self.step, state, stamp_ns, frame_id, xyz, t_offset_ns,
+                          has_times)
         if on_stairs:
             # On stairs every scan: the motion prior (planar wheel odometry) does not climb, and
             # a scan posed by it would start the next registration a step too low (with every
@@ -133,14 +139,7 @@ class Mapper:
             self.book.hang(state.keyframe, stamp_ns, scan_pose)
 
     def _needs_keyframe(self, pose: F64) -> bool:
-        last = self.state.map_pose
-        if last is None or self.matcher.map.size == 0:
-            return True
-        rel = inverse(last) @ pose
-        return bool(
-            np.linalg.norm(rel[:3, 3]) >= self.cfg.keyframes.distance_m
-            or np.degrees(rotation_angle_rad(rel)) >= self.cfg.keyframes.angle_deg
-        )
+        return needs_keyframe(self.cfg, self.state.map_pose, self.matcher.map.size, pose)
 
     def _keyframe(self, stamp_ns: int, points: F64, sensor: F64, pose: F64, fitness: float,
                   rmse_m: float, emit: bool) -> None:
@@ -215,6 +214,7 @@ class Mapper:
             # later. The odometry continues from the pose reached on the stairs, levelled by
             # gravity (the climb leaves tenths of a degree of tilt, and a tilted new map makes
             # the flat floor climb: on `long` this halves the visit's drift before loops).
+            self.climb.end(state, self.book)
             self.matcher.map.clear()
             if not self.planar and self.cfg.stairs.level_window_s > 0:
                 state.pose = self.motion.level(state.pose, stamp_ns,
@@ -276,7 +276,8 @@ class Mapper:
         self.book.pending = [(ns, rigid @ pose) for ns, pose in self.book.pending]
 
     def counters(self) -> dict[str, float]:
-        return mapper_counters(self.matcher, self.cabin, self.loops, self.counts, self.wheels)
+        return mapper_counters(self.matcher, self.cabin, self.loops, self.counts, self.wheels,
+                               self.climb.climbs)
 
     def result(self) -> MappingResult:
         self.finish_run()

@@ -35,10 +35,18 @@ def loop_counters(loops: LoopCloser) -> dict[str, float]:
     return {name: float(getattr(loops.stats, attr)) for name, attr in LOOP_COUNTERS.items()}
 
 
+# Counters the merge of chunks takes the maximum of (the others it sums).
+MAX_COUNTERS = ("max_local_map_points", "climb_spread_max_m")
+
+
 def mapper_counters(matcher: ScanMatcher | Scan2DMatcher, cabin: CabinFilter | None,
-                    loops: LoopCloser, counts: ScanCounts, wheels: RunScale) -> dict[str, float]:
-    """One mapper's counters, summed (or their maximum taken) over chunks by the merge."""
+                    loops: LoopCloser, counts: ScanCounts, wheels: RunScale,
+                    climbs: list[list[float]]) -> dict[str, float]:
+    """One mapper's counters, summed (or their maximum taken, `MAX_COUNTERS`) over chunks by
+    the merge. `climbs`: per stair walk, its registrations' climbs (mfmap.mapping.climb)."""
     return {
+        "climbs_averaged": float(len(climbs)),
+        "climb_spread_max_m": max((max(c) - min(c) for c in climbs), default=0.0),
         "gyro_overruled": float(getattr(matcher, "overruled", 0)),
         "heading_blended": float(getattr(matcher, "blended", 0)),
         "registrations_refined": float(matcher.refined),
@@ -74,6 +82,9 @@ def stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),
         **{name: counters.get(name, 0.0) for name in LOOP_COUNTERS},
         "max_local_map_points": counters.get("max_local_map_points", 0.0),
+        # stair walks whose climb is the mean of several registrations, and their widest spread
+        "climbs_averaged": counters.get("climbs_averaged", 0.0),
+        "climb_spread_max_m": counters.get("climb_spread_max_m", 0.0),
         "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
         "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
         # lidar ~ scale * wheels between keyframes (0: no wheel odometry or no travel)
