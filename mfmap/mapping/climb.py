@@ -13,15 +13,12 @@ inter-floor registration holds them.
 
 from __future__ import annotations
 
-import copy
-from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from mfmap.mapping.config import MappingConfig
 from mfmap.mapping.geometry import inverse, rotation_angle_rad
-from mfmap.mapping.mapstats import ScanCounts
 from mfmap.mapping.motion import TrackState
 from mfmap.mapping.odometry import ScanMatcher
 from mfmap.mapping.posebook import PoseBook
@@ -57,19 +54,9 @@ def _fork(step: ScanStep, state: TrackState, voxel_m: float) -> _Member:
     """A copy of the odometry's tracking that shares nothing it changes: the local map's
     keyframes (its k-d tree target is replaced on every update, never changed), the adaptive
     threshold, the stand-still registrations, the counters."""
-    matcher = step.matcher
-    assert isinstance(matcher, ScanMatcher)
-    local = copy.copy(matcher.map)
-    local._frames = deque(matcher.map._frames, maxlen=matcher.map._frames.maxlen)
-    twin = copy.copy(matcher)
-    twin.map, twin.threshold, twin.voxel_m = local, copy.copy(matcher.threshold), voxel_m
-    still = copy.copy(step.still)
-    still._still = list(step.still._still)
-    member_step = copy.copy(step)
-    member_step.matcher, member_step.still, member_step.counts = twin, still, ScanCounts()
-    member_step.warnings = []
-    member_step._missing_frames = set(step._missing_frames)
-    return _Member(replace(state), member_step, twin)
+    assert isinstance(step.matcher, ScanMatcher)
+    twin = step.matcher.fork(voxel_m)
+    return _Member(replace(state), step.fork(twin), twin)
 
 
 class ClimbEnsemble:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -90,6 +91,13 @@ class LocalMap:
         self._frames.clear()
         self.target = None
         self.size = 0
+
+    def fork(self) -> LocalMap:
+        """A copy that later keyframes do not share (the target is replaced on every update,
+        never changed, so both start from this one)."""
+        twin = copy.copy(self)
+        twin._frames = deque(self._frames, maxlen=self._frames.maxlen)
+        return twin
 
     def add(self, world_points: F64, position: F64, sensor: F64 | None = None) -> None:
         """A keyframe's points (world frame) at `position`, seen from `sensor` (world frame; by
@@ -199,6 +207,13 @@ class ScanMatcher:
             return ScanMatch(predicted, result.fitness, result.rmse_m, False)
         self._jumps_in_a_row = 0
         return self._accept(result, predicted, gyro_prior, gyro_var_rad2)
+
+    def fork(self, voxel_m: float) -> ScanMatcher:
+        """A copy registering scans downsampled at `voxel_m`, with its own local map and
+        adaptive threshold from here on."""
+        twin = copy.copy(self)
+        twin.map, twin.threshold, twin.voxel_m = self.map.fork(), copy.copy(self.threshold), voxel_m
+        return twin
 
     def _jumped(self, result: Registration, predicted: F64, max_jump_m: float) -> bool:
         """Whether the registration moved the scan further from the motion prior than the

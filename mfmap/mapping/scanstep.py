@@ -3,6 +3,7 @@ the local map, held in place while the robot turns on the spot."""
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -86,6 +87,14 @@ class ScanStep:
         self.warnings: list[str] = []  # in the order they arose
         self.still = StandStill(cfg, motion)
         self._missing_frames: set[str] = set()
+
+    def fork(self, matcher: ScanMatcher) -> ScanStep:
+        """A copy registering with `matcher`, with its own stand-stills, counters and
+        warnings."""
+        twin = copy.copy(self)
+        twin.matcher, twin.still, twin.counts = matcher, self.still.fork(), ScanCounts()
+        twin.warnings, twin._missing_frames = [], set(self._missing_frames)
+        return twin
 
     def predict(self, state: TrackState, stamp_ns: int) -> F64:
         delta = self.motion.predict(state, stamp_ns)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -30,6 +31,12 @@ class StandStill:
     def clear(self) -> None:
         """A new visit: no stand-still carries over."""
         self._still.clear()
+
+    def fork(self) -> StandStill:
+        """A copy whose stand-stills from here on are its own."""
+        twin = copy.copy(self)
+        twin._still = list(self._still)
+        return twin
 
     def _wheel_distance(self, from_ns: int, to_ns: int) -> float | None:
         """How far the wheels say the robot moved between the stamps (None without them)."""
