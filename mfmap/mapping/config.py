@@ -202,6 +202,14 @@ class StairsConfig(BaseModel):
         description="after stairs, level the pose by the mean accelerometer over this long "
         "(0: off)",
     )
+    prior_while_tipping: bool = Field(
+        True,
+        description="on a stair walk, a scan taken while the base tips (its tilt changes more "
+        "than 0.5 degrees since the scan before by the motion prior: stepping onto or off a "
+        "flight) is posed by the motion prior (gyro and wheels) and not registered: the "
+        "registrations of the tip dropped or raised the climb by 3-12 cm at once, within "
+        "`max_jump_m`, and a keyframe taken there kept it",
+    )
     hold_tilt_level_deg: float = Field(
         4.0, ge=0.0, le=15.0,
         description="on a stair walk, a scan whose base stands within this of level for a "

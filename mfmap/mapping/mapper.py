@@ -114,8 +114,8 @@ class Mapper:
             return
         step = self.step.register(state, stamp_ns, frame_id, xyz, t_offset_ns, has_times,
                                   on_stairs)
-        if step.points is None or step.match is None:  # inside the cabin
-            self._record(stamp_ns, step.pose, step.ref_ns, step.pose, step.delta, step.dt)
+        if step.points is None or step.match is None:  # inside the cabin, or tipping
+            self._record(stamp_ns, step.scan_pose(), step.ref_ns, step.pose, step.delta, step.dt)
             return
         if self._needs_keyframe(step.pose):
             assert step.sensor is not None

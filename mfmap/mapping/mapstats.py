@@ -18,6 +18,7 @@ class ScanCounts:
 
     registered: int = 0
     in_cabin_scans: int = 0
+    tipping_scans: int = 0  # stair-walk scans posed by the motion prior while the base tipped
     held_scans: int = 0  # stand-still scans that took the last registration's pose
     turn_held: int = 0  # registrations turning in place that kept the stand-still's x, y
     max_map_points: int = 0
@@ -54,6 +55,7 @@ def mapper_counters(matcher: ScanMatcher | Scan2DMatcher, cabin: CabinFilter | N
         "registration_failures": float(matcher.failures),
         "registrations_off_prior": float(getattr(matcher, "jumps", 0)),
         "in_cabin_scans": float(counts.in_cabin_scans),
+        "tipping_scans": float(counts.tipping_scans),
         "held_scans": float(counts.held_scans),
         "turn_held": float(counts.turn_held),
         "cabin_points_dropped": float(cabin.dropped if cabin else 0),
@@ -86,6 +88,7 @@ def stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "climbs_averaged": counters.get("climbs_averaged", 0.0),
         "climb_spread_max_m": counters.get("climb_spread_max_m", 0.0),
         "in_cabin_scans": counters.get("in_cabin_scans", 0.0),
+        "tipping_scans": counters.get("tipping_scans", 0.0),
         "cabin_points_dropped": counters.get("cabin_points_dropped", 0.0),
         # lidar ~ scale * wheels between keyframes (0: no wheel odometry or no travel)
         "wheel_odometry_scale": (counters.get("wheel_scale_dot", 0.0) / norm

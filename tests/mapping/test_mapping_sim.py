@@ -271,6 +271,9 @@ def test_stairs_climb_from_the_lidar(stairs: Path, stairs_result: MappingResult,
     for edge, tr in zip(across, seg.transitions, strict=True):
         climb_m = (pose[edge.i] @ edge.measured)[2, 3] - pose[edge.i][2, 3]
         assert climb_m == pytest.approx(tr.height_change_m, abs=0.075), (climb_m, tr)
+    # Onto and off each flight the base tips, and those scans take the motion prior
+    # (`stairs.prior_while_tipping`): at least one scan per tip, never a whole flight.
+    assert 4 <= result.stats["tipping_scans"] <= 40
 
 
 def test_stairs_logs_map_in_parallel_chunks_that_meet_at_each_walks_end(
