@@ -34,6 +34,11 @@ def rotation_angle_rad(pose: F64) -> float:
     return float(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def tilt_change_deg(delta: F64) -> float:
+    """How far a relative pose turns the base's up (degrees)."""
+    return float(np.degrees(np.arccos(np.clip(delta[2, 2], -1.0, 1.0))))
+
+
 def pull_tilt(pose: F64, towards: F64, share: float) -> F64:
     """`pose` turned about a horizontal axis of its base so that its tilt (the world's up in its
     base) keeps `share` of its difference from `towards`'s; its position, and its heading to

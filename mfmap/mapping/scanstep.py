@@ -18,6 +18,7 @@ from mfmap.mapping.geometry import (
     inverse,
     pull_tilt,
     rotation_angle_rad,
+    tilt_change_deg,
     transform,
     twist,
     yaw_pose,
@@ -34,11 +35,6 @@ from mfmap.types import F32, F64, I64, Extrinsics
 TIPPING_DEG = 0.5
 # A scan on a walk is on level ground when the base stood level this long either side of it.
 LEVEL_HALF_NS = 1_000_000_000
-
-
-def tilt_change_deg(delta: F64) -> float:
-    """How far a relative pose turns the base's up (degrees)."""
-    return float(np.degrees(np.arccos(np.clip(delta[2, 2], -1.0, 1.0))))
 
 
 @dataclass(frozen=True)
