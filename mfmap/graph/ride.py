@@ -15,9 +15,10 @@ What is left is the white noise integrated twice: over a velocity "bridge" of th
 sigma_z = sigma_a sqrt(dt) T^1.5 / sqrt(12) (T the window length), about 1.3 cm for a 7 s ride
 with a 0.03 m/s^2 accelerometer at 200 Hz; without the cruise, mostly the cruise speed's error
 (that noise over the speeding up and braking) times the cruise's length. On the simulator's
-stress rides (3-13 m, 0.5-0.9 m/s^2) that is 0.5-1.6 cm rms: the accelerometer's noise itself, as
+stress rides (3-13 m, 0.5-0.9 m/s^2) that is 0.5-1.7 cm rms: the accelerometer's noise itself, as
 the same rides with a noise-free accelerometer come within 0.02 cm. Under 1 cm on nine rides in
-ten would take an accelerometer with half that noise (150 ug/sqrt(Hz) against 300).
+ten takes an accelerometer of about 170 ug/sqrt(Hz) against the simulator's 300
+(`pipelines/ride_noise.py`).
 """
 
 from __future__ import annotations
