@@ -35,7 +35,7 @@ from mfmap.sim.scenarios import SCENARIOS, building_for
 from mfmap.sim.sensors import Kinematics
 from mfmap.sim.trajectory import DT_S
 from mfmap.types import ImuSeries
-from pipelines.regress.manifest import load_manifest
+from pipelines.regress.manifest import ManifestError, load_manifest
 
 STANDARD_GRAVITY_M_S2 = 9.80665
 # The simulator's own IMU: per-sample sigmas at 200 Hz and the bias spread it draws per log.
@@ -108,8 +108,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     densities = [float(x) for x in args.densities.split(",")]
+    try:
+        logs = load_manifest(args.manifest, check=False).logs
+    except ManifestError as err:
+        print(err, file=sys.stderr)
+        return 2
     rides: list[Ride] = []
-    for log in load_manifest(args.manifest, check=False).logs:
+    for log in logs:
         if log.simulate is not None:
             sim = log.simulate
             if sim.scenario not in SCENARIOS:

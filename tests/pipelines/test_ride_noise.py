@@ -34,19 +34,21 @@ def test_prints_the_share_within_one_centimetre(
     assert "tiny ride 1 (building floors 0 -> 1) | +3.50 |" in out
 
 
-def test_a_manifest_without_simulated_rides_is_one_line(
-    write_manifest: Callable[..., Path], capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(("scenario", "code", "message"), [
+    ("single-floor", 1, "no simulated elevator rides"),
+    ("no-such", 2, "unknown scenario 'no-such'"),
+])
+def test_a_manifest_it_cannot_use_is_one_line(
+    write_manifest: Callable[..., Path], capsys: pytest.CaptureFixture[str], scenario: str, code: int,
+    message: str,
 ) -> None:
-    path = write_manifest({"name": "none", "baseline": "b.json",
-                           "logs": [{"name": "still", "simulate": {"scenario": "single-floor", "seed": 0}}]})
-    assert main([str(path), "--draws", "1"]) == 1
-    assert "no simulated elevator rides" in capsys.readouterr().err
+    path = write_manifest({"name": "m", "baseline": "b.json",
+                           "logs": [{"name": "x", "simulate": {"scenario": scenario, "seed": 0}}]})
+    assert main([str(path), "--draws", "1"]) == code
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
 
 
-def test_an_unknown_scenario_is_one_line(
-    write_manifest: Callable[..., Path], capsys: pytest.CaptureFixture[str]
-) -> None:
-    path = write_manifest({"name": "bad", "baseline": "b.json",
-                           "logs": [{"name": "x", "simulate": {"scenario": "no-such", "seed": 0}}]})
-    assert main([str(path), "--draws", "1"]) == 2
-    assert "unknown scenario 'no-such'" in capsys.readouterr().err
+def test_a_missing_manifest_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([str(tmp_path / "none.yaml")]) == 2
+    assert capsys.readouterr().err.strip() == f"{tmp_path / 'none.yaml'}: manifest not found"
