@@ -188,9 +188,9 @@ class StairsConfig(BaseModel):
     )
     climb_registrations: int = Field(
         3, ge=1, le=8,
-        description="registrations of each stair walk's scans whose climbs are averaged for the "
-        "floor reached: the odometry's and copies of it at other scan voxels (1: the "
-        "odometry's alone). Each costs the walk's registration time again",
+        description="registrations of each stair walk's scans whose median climb sets the floor "
+        "reached: the odometry's and copies of it at other scan voxels (1: the odometry's "
+        "alone; 2: their mean). Each costs the walk's registration time again",
     )
     climb_voxel_spread: float = Field(
         0.05, gt=0.0, le=0.3,

@@ -68,7 +68,7 @@ class Mapper:
         self.step = ScanStep(cfg, extrinsics, motion, planar, self.matcher, self.cabin, self.counts)
         # The wheels' scale since the last elevator ride, and that run (see `finish_run`).
         self.wheels = RunScale(cfg.motion.odom_scale_min_m)
-        # A stair walk's climb registered again and averaged (`climb`).
+        # A stair walk's climb registered again, the median taken (`climb`).
         self.climb = ClimbFollower(cfg, planar)
         if motion.source != "odometry" and cfg.cabin.filter and any(
             tr.kind == TransitionKind.ELEVATOR for tr in self.timeline.transitions

@@ -84,7 +84,7 @@ def stats(counters: dict[str, float], scans: int, keyframes: list[Keyframe],
         "loop_edges": float(sum(e.kind == "loop" for e in edges)),
         **{name: counters.get(name, 0.0) for name in LOOP_COUNTERS},
         "max_local_map_points": counters.get("max_local_map_points", 0.0),
-        # stair walks whose climb is the mean of several registrations, and their widest spread
+        # stair walks whose climb is the median of several registrations, and their widest spread
         "climbs_averaged": counters.get("climbs_averaged", 0.0),
         "climb_spread_max_m": counters.get("climb_spread_max_m", 0.0),
         "in_cabin_scans": counters.get("in_cabin_scans", 0.0),

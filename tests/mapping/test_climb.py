@@ -1,11 +1,11 @@
-"""A stair walk's climb registered several times and averaged (mfmap.mapping.climb)."""
+"""A stair walk's climb registered several times, the median taken (mfmap.mapping.climb)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from mfmap.mapping.climb import member_voxel, ramp_climb
+from mfmap.mapping.climb import median_change, member_voxel, ramp_climb
 from mfmap.types import Keyframe, ScanPose
 
 
@@ -34,3 +34,12 @@ def test_the_walks_scans_take_the_change_in_step_with_their_climb() -> None:
     assert [(before.pose @ sp.relative)[0, 3] for sp in scans[1:]] == pytest.approx(
         [1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
     assert scans[0] is other
+
+
+def test_one_registration_far_off_does_not_move_the_climb() -> None:
+    # gen-stairs-s3's walk 0 -> 2: the odometry and one copy within a centimetre, the other
+    # copy 8.5 cm lower; the mean would drop the floor reached by 3.5 cm, the median by 1.
+    assert median_change([6.0844, 6.0742, 5.9897]) == pytest.approx(-0.0102, abs=1e-9)
+    # Two registrations: their mean.
+    assert median_change([3.50, 3.48]) == pytest.approx(-0.01, abs=1e-9)
+    assert median_change([3.5]) == 0.0
