@@ -29,23 +29,18 @@ from pathlib import Path
 
 import numpy as np
 
-from mfmap.graph.ride import ride_height
-from mfmap.sim.run import build_trajectory, start_stamp_ns
-from mfmap.sim.scenarios import SCENARIOS, building_for
-from mfmap.sim.sensors import Kinematics
+from mfmap.graph.ride import STANDARD_GRAVITY_M_S2, ride_height
+from mfmap.sim.run import scenario_route, start_stamp_ns
+from mfmap.sim.scenarios import SCENARIOS
+from mfmap.sim.sensors import Imu, Kinematics
 from mfmap.sim.trajectory import DT_S
 from mfmap.types import ImuSeries
+from pipelines.height_figures import RIDE_BAR_M
 from pipelines.regress.manifest import ManifestError, load_manifest
 
-STANDARD_GRAVITY_M_S2 = 9.80665
-# The simulator's own IMU: per-sample sigmas at 200 Hz and the bias spread it draws per log.
-SIM_ACCEL_SIGMA_M_S2 = 0.03
-GYRO_SIGMA_RAD_S = 0.003
-BIAS_SIGMA_M_S2 = 0.03
 # Stand-still kept either side of the truth's ride span (the estimator looks 1.5 s beyond it,
 # plus its pad and stand-still windows).
 MARGIN_S = 5.0
-RIDE_BAR_M = 0.01
 
 
 @dataclass(frozen=True)
@@ -63,10 +58,7 @@ class Ride:
 
 def rides_of(scenario: str, seed: int, duration_scale: float, log: str) -> list[Ride]:
     """The elevator rides of one simulated log, rebuilt from its scenario and seed."""
-    spec = SCENARIOS[scenario]
-    building = building_for(spec, seed)
-    log_seed = spec.session.log_seed(seed) if spec.session is not None else seed
-    traj = build_trajectory(spec, building, log_seed, max(1, round(duration_scale)))
+    _, log_seed, traj = scenario_route(SCENARIOS[scenario], seed, duration_scale)
     t0_ns = start_stamp_ns(log_seed)
     out = []
     for k, tr in enumerate(t for t in traj.transitions if t.kind == "elevator"):
@@ -87,8 +79,8 @@ def ride_errors(ride: Ride, density_ug: float, draws: int, rng: np.random.Genera
     nan = np.full((n, 4), np.nan)
     errors = np.empty(draws)
     for d in range(draws):
-        acc = ride.specific_force + rng.normal(0, BIAS_SIGMA_M_S2, 3) + rng.normal(0, sigma, (n, 3))
-        gyro = ride.gyro + rng.normal(0, GYRO_SIGMA_RAD_S, (n, 3))
+        acc = ride.specific_force + rng.normal(0, Imu.ACCEL_BIAS_M_S2, 3) + rng.normal(0, sigma, (n, 3))
+        gyro = ride.gyro + rng.normal(0, Imu.GYRO_NOISE_RAD_S, (n, 3))
         found = ride_height(ImuSeries(ride.stamp_ns, gyro, acc, nan), ride.start_ns, ride.end_ns)
         h = found.height_change_m
         errors[d] = np.nan if h is None else h - ride.height_change_m
@@ -127,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     table = {d: [ride_errors(r, d, args.draws, rng) for r in rides] for d in densities}
     print(f"{len(rides)} rides, {args.draws} noise draws each (simulator: "
-          f"{SIM_ACCEL_SIGMA_M_S2 / math.sqrt(0.5 / DT_S) / STANDARD_GRAVITY_M_S2 * 1e6:.0f} ug/sqrt(Hz))\n")
+          f"{Imu.ACCEL_NOISE_M_S2 / math.sqrt(0.5 / DT_S) / STANDARD_GRAVITY_M_S2 * 1e6:.0f} ug/sqrt(Hz))\n")
     print("| noise density (ug/sqrt(Hz)) | within 1 cm | RMS (cm) | 95th percentile (cm) | skipped |")
     print("|---|---|---|---|---|")
     for d in densities:

@@ -98,6 +98,15 @@ def build_trajectory(spec: ScenarioSpec, building: Building, seed: int, reps: in
     return builder.finish(rng)
 
 
+def scenario_route(spec: ScenarioSpec, seed: int, duration_scale: float = 1.0) -> tuple[Building, int, Trajectory]:
+    """The scenario's building for `seed`, the log's own seed and its route, as `simulate`
+    writes them (each floor visit's tour repeated round(duration_scale) times, at least once)."""
+    building = building_for(spec, seed)
+    # A session of a building shares the building with its other sessions, not their day.
+    log_seed = spec.session.log_seed(seed) if spec.session is not None else seed
+    return building, log_seed, build_trajectory(spec, building, log_seed, max(1, round(duration_scale)))
+
+
 def make_barometer(spec: ScenarioSpec, building: Building, traj: Trajectory, seed: int) -> Barometer:
     """The scenario's barometer in its world: the world drawn from the seed, prepared for the
     route (zones, doors, cabin), and the sensor on top."""
@@ -129,11 +138,7 @@ def simulate(
     t_wall = time.perf_counter()
     spec = SCENARIOS[scenario]
     out = _output_folder(Path(out_dir))
-    reps = max(1, round(duration_scale))
-    building = building_for(spec, seed)
-    # A session of a building shares the building with its other sessions, not their day.
-    log_seed = spec.session.log_seed(seed) if spec.session is not None else seed
-    traj = build_trajectory(spec, building, log_seed, reps)
+    building, log_seed, traj = scenario_route(spec, seed, duration_scale)
     start_ns = start_stamp_ns(log_seed)
     duration_s = round(traj.duration_s)
     baro = make_barometer(spec, building, traj, log_seed)

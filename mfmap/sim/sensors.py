@@ -259,11 +259,17 @@ class Kinematics:
 
 
 class Imu:
+    # White noise per sample at 200 Hz (the accelerometer's: 300 ug/sqrt(Hz) on a datasheet) and
+    # the spread of the accelerometer's bias, drawn once per log.
+    ACCEL_NOISE_M_S2 = 0.03
+    GYRO_NOISE_RAD_S = 0.003
+    ACCEL_BIAS_M_S2 = 0.03
+
     def __init__(self, traj: Trajectory, seed: int) -> None:
         self.traj = traj
         self.rng = np.random.default_rng([seed, 17])
         self.gyro_bias = self.rng.normal(0, 0.002, 3)
-        self.acc_bias = self.rng.normal(0, 0.03, 3)
+        self.acc_bias = self.rng.normal(0, self.ACCEL_BIAS_M_S2, 3)
         self.yaw_drift_rad_s = math.radians(0.3) / 60 * (1 if self.rng.random() < 0.5 else -1)
 
     def samples(self, kin: Kinematics) -> tuple[F64, F64, F64]:
@@ -274,8 +280,8 @@ class Imu:
         i0, i1 = kin.start, kin.start + n
         rng = self.rng
         self.gyro_bias = self.gyro_bias + rng.normal(0, 2e-5, 3)  # slow random walk per window
-        gyro = kin.gyro + self.gyro_bias + rng.normal(0, 0.003, (n, 3))
-        acc = kin.specific_force + self.acc_bias + rng.normal(0, 0.03, (n, 3))
+        gyro = kin.gyro + self.gyro_bias + rng.normal(0, self.GYRO_NOISE_RAD_S, (n, 3))
+        acc = kin.specific_force + self.acc_bias + rng.normal(0, self.ACCEL_NOISE_M_S2, (n, 3))
         rpy = self.traj.rpy[i0:i1].copy()
         rpy[:, :2] += rng.normal(0, math.radians(0.1), (n, 2))
         rpy[:, 2] += self.yaw_drift_rad_s * np.arange(i0, i1) * DT_S
