@@ -377,13 +377,12 @@ def decode_laserscan(msg: Any, stamp_ns: int, reversed_time: bool = False, where
         raise DecodeError(f"LaserScan with angle_min {angle_min} and angle_increment {increment}: "
                           "no bearing for its ranges", where or None)
     angles = angle_min + i * increment
+    # The limits compared in float64: a driver's range_max past float32's (1e300, say) would
+    # overflow in a float32 comparison.
+    wide = ranges.astype(np.float64)
     with np.errstate(invalid="ignore"):
-        keep = (
-            np.isfinite(ranges)
-            & (ranges >= float(msg.range_min))
-            & (ranges <= float(msg.range_max))
-        )
-    r = ranges[keep].astype(np.float64)
+        keep = np.isfinite(wide) & (wide >= float(msg.range_min)) & (wide <= float(msg.range_max))
+    r = wide[keep]
     a = angles[keep]
     xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1).astype(np.float32)
     t_offset = None
