@@ -3,6 +3,9 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 MFMAP := $(VENV)/bin/mfmap
 WORK ?= work
+# pytest-xdist workers, one test file each (a file's fixtures are built once): the suite is
+# mostly whole builds that keep one core busy, so two workers use a 2-core machine's second.
+TEST_WORKERS ?= 2
 
 .PHONY: setup demo test lint typecheck pytest config
 
@@ -21,7 +24,7 @@ typecheck:
 	$(VENV)/bin/mypy
 
 pytest:
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 config: setup
 	$(MFMAP) config > sample_configs/default.yaml

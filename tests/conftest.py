@@ -25,17 +25,12 @@ def shared_dir() -> Path:
 def sim_run() -> Callable[..., Path]:
     """sim_run(scenario, fmt="mcap", seed=0) -> folder holding the log and its ground truth."""
 
-    def run(scenario: str, fmt: str = "mcap", seed: int = 0, **kwargs: object) -> Path:
-        from mfmap.sim import simulate, source_digest
+    def run(scenario: str, fmt: str = "mcap", seed: int = 0, duration_scale: float = 1.0) -> Path:
+        from pipelines.regress.manifest import Simulate
+        from pipelines.regress.runner import ensure_simulated
 
-        extra = "-".join(f"{k}={v}" for k, v in sorted(kwargs.items()))
-        folder = SIM_CACHE / f"{scenario}-{fmt}-{seed}{('-' + extra) if extra else ''}"
-        done = folder / ".complete"
-        # The marker holds the simulator's source digest, so a changed simulator regenerates.
-        digest = source_digest()
-        if not done.exists() or done.read_text().strip() != digest:
-            simulate(scenario, folder, fmt=fmt, seed=seed, **kwargs)  # type: ignore[arg-type]
-            done.write_text(digest + "\n")
-        return folder
+        # Locked: pytest-xdist's workers may ask for one log at once.
+        spec = {"scenario": scenario, "fmt": fmt, "seed": seed, "duration_scale": duration_scale}
+        return ensure_simulated(SIM_CACHE, Simulate.model_validate(spec))
 
     return run

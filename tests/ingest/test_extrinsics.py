@@ -146,12 +146,16 @@ def test_frames_a_build_can_do_without_only_warn(tmp_path: Path) -> None:
 
 
 def test_info_check_exits_non_zero_when_a_build_would_not_be_right(
-    source: Callable[[str], Path], tmp_path: Path
+    source: Callable[[str], Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from typer.testing import CliRunner
 
+    from mfmap import cli
     from mfmap.cli import app
 
+    # The console's width is fixed when mfmap.cli is imported (by COLUMNS, if set then): wide
+    # enough here for the table's cells whatever the length of the temporary folder's path.
+    monkeypatch.setattr(cli.console, "width", 250)
     good = CliRunner().invoke(app, ["info", "--check", str(source("mcap"))])
     assert good.exit_code == 0, good.output
     assert "per-point time" in good.stdout and "/tf_static" in good.stdout
