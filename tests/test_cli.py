@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from mfmap import __version__
@@ -27,10 +26,8 @@ def test_help_does_not_import_heavy_libraries() -> None:
         "heavy = [m for m in ('open3d', 'gtsam', 'cv2', 'matplotlib', 'scipy') if m in sys.modules];"
         "print(','.join(heavy))"
     )
-    t0 = time.perf_counter()
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert res.stdout.strip() == ""
-    assert time.perf_counter() - t0 < 30  # sanity only; the speed figure is in the README
 
 
 def test_bad_config_is_one_line_and_exit_1(tmp_path: Path) -> None:
