@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -10,8 +9,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
-# Simulated logs are deterministic, so they are cached across runs in .cache/sim (gitignored).
-SIM_CACHE = Path(os.environ.get("MFMAP_SIM_CACHE", ROOT / ".cache" / "sim"))
 
 
 @pytest.fixture(scope="session")
@@ -23,14 +20,16 @@ def shared_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def sim_run() -> Callable[..., Path]:
-    """sim_run(scenario, fmt="mcap", seed=0) -> folder holding the log and its ground truth."""
+    """sim_run(scenario, fmt="mcap", seed=0, duration_scale=1.0) -> folder holding the log and
+    its ground truth, cached across runs as the regression runner caches it (.cache/sim, or
+    MFMAP_SIM_CACHE): the simulator is deterministic."""
 
     def run(scenario: str, fmt: str = "mcap", seed: int = 0, duration_scale: float = 1.0) -> Path:
-        from pipelines.regress.manifest import Simulate
+        from pipelines.regress.manifest import DEFAULT_SIM_CACHE, Simulate
         from pipelines.regress.runner import ensure_simulated
 
         # Locked: pytest-xdist's workers may ask for one log at once.
         spec = {"scenario": scenario, "fmt": fmt, "seed": seed, "duration_scale": duration_scale}
-        return ensure_simulated(SIM_CACHE, Simulate.model_validate(spec))
+        return ensure_simulated(DEFAULT_SIM_CACHE, Simulate.model_validate(spec))
 
     return run
