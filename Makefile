@@ -23,7 +23,9 @@ lint:
 typecheck:
 	$(VENV)/bin/mypy
 
+# The simulated logs first, all cores busy: from a cold cache the workers would wait on each other.
 pytest:
+	$(PY) -m tests.simlogs --workers $(TEST_WORKERS)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 config: setup

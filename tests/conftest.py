@@ -27,9 +27,13 @@ def sim_run() -> Callable[..., Path]:
     def run(scenario: str, fmt: str = "mcap", seed: int = 0, duration_scale: float = 1.0) -> Path:
         from pipelines.regress.manifest import DEFAULT_SIM_CACHE, Simulate
         from pipelines.regress.runner import ensure_simulated
+        from tests.simlogs import KNOWN, spec_key
 
-        # Locked: pytest-xdist's workers may ask for one log at once.
         spec = {"scenario": scenario, "fmt": fmt, "seed": seed, "duration_scale": duration_scale}
+        if spec_key(spec) not in KNOWN:
+            pytest.fail(f"add {spec} to SIM_LOGS in tests/simlogs.py: `make test` simulates those "
+                        "logs before the tests start")
+        # Locked: pytest-xdist's workers may ask for one log at once.
         return ensure_simulated(DEFAULT_SIM_CACHE, Simulate.model_validate(spec))
 
     return run

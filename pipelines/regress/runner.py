@@ -139,23 +139,26 @@ def _file_lock(path: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def is_simulated(cache: Path, sim: Simulate) -> bool:
+    """Whether the cache holds this run, complete and made by the simulator's present source."""
+    from mfmap.sim import source_digest
+
+    folder = sim_folder(cache, sim)
+    done = folder / ".complete"
+    # The marker holds the simulator's source digest.
+    return (done.exists() and (folder / SIM_LOG_NAME[sim.fmt]).exists()
+            and done.read_text().strip() == source_digest())
+
+
 def ensure_simulated(cache: Path, sim: Simulate) -> Path:
     """Generate a scenario once into the cache (locked, so parallel workers share one run)."""
     from mfmap.sim import simulate, source_digest
 
     folder = sim_folder(cache, sim)
-    done = folder / ".complete"
-    log = folder / SIM_LOG_NAME[sim.fmt]
-    # The marker holds the simulator's source digest (as the tests' sim_run fixture writes it).
-    digest = source_digest()
-
-    def fresh() -> bool:
-        return done.exists() and log.exists() and done.read_text().strip() == digest
-
-    if fresh():
+    if is_simulated(cache, sim):
         return folder
     with _file_lock(folder.with_name(folder.name + ".lock")):
-        if fresh():
+        if is_simulated(cache, sim):
             return folder
 
         if folder.exists():  # an interrupted or partly deleted run: start again
@@ -164,7 +167,7 @@ def ensure_simulated(cache: Path, sim: Simulate) -> Path:
         if sim.duration_scale != 1.0:
             kwargs["duration_scale"] = sim.duration_scale
         simulate(sim.scenario, folder, fmt=sim.fmt, seed=sim.seed, **kwargs)
-        done.write_text(digest + "\n")
+        (folder / ".complete").write_text(source_digest() + "\n")
     return folder
 
 
