@@ -92,3 +92,37 @@ print(*worker_cpus(2), sep=",")
     cpus = sorted(os.sched_getaffinity(0))
     assert first != cpus[0]
     assert second == (cpus[0] + 2) % (os.cpu_count() or 1)
+
+
+WORKER_START = """
+import os
+import sys
+
+import open3d  # at the top, as scripts do: a spawned worker imports this module first
+
+from mfmap.mapping.workers import worker_pool
+
+
+def initial_omp(_: int) -> str:
+    # The environment the worker's interpreter started with, not what start_worker set since.
+    env = dict(v.split("=", 1) for v in open("/proc/self/environ").read().split("\\0") if "=" in v)
+    return env.get("OMP_NUM_THREADS", "unset")
+
+
+if __name__ == "__main__":
+    with worker_pool(2, warm=False) as pool:
+        print(*pool.map(initial_omp, range(2)), os.environ.get("OMP_NUM_THREADS", "unset"))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="reads /proc/self/environ")
+def test_workers_start_with_one_openmp_thread(tmp_path: Path) -> None:
+    """A worker imports the caller's main module before its initializer runs: a script that
+    imports open3d at its top must not give the worker a thread per CPU (`_one_thread_environ`),
+    and the caller's environment is left as it was."""
+    script = tmp_path / "script.py"
+    script.write_text(WORKER_START)
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         env=_env(PYTHONPATH=str(Path(__file__).resolve().parent.parent)))
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["1", "1", "unset"]
