@@ -27,10 +27,10 @@ def sim_run() -> Callable[..., Path]:
     def run(scenario: str, fmt: str = "mcap", seed: int = 0, duration_scale: float = 1.0) -> Path:
         from pipelines.regress.manifest import DEFAULT_SIM_CACHE, Simulate
         from pipelines.regress.runner import ensure_simulated
-        from tests.simlogs import KNOWN, spec_key
+        from tests.simlogs import cache_name, known
 
         spec = {"scenario": scenario, "fmt": fmt, "seed": seed, "duration_scale": duration_scale}
-        if spec_key(spec) not in KNOWN:
+        if cache_name(spec) not in known():
             pytest.fail(f"add {spec} to SIM_LOGS in tests/simlogs.py: `make test` simulates those "
                         "logs before the tests start")
         # Locked: pytest-xdist's workers may ask for one log at once.

@@ -13,10 +13,12 @@ SIM_LOGS, so the list cannot fall behind the tests.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import Any
 
 # Longest first, so that the last to finish are short.
@@ -42,13 +44,18 @@ SIM_LOGS: tuple[dict[str, Any], ...] = (
 )
 
 
-def spec_key(spec: dict[str, Any]) -> tuple[str, str, int, float]:
-    """A log's identity: scenario, format, seed, duration scale (the defaults filled in)."""
-    return (spec["scenario"], spec.get("fmt", "mcap"), int(spec.get("seed", 0)),
-            float(spec.get("duration_scale", 1.0)))
+def cache_name(spec: dict[str, Any]) -> str:
+    """A log's identity: its folder's name in the cache (the manifest's defaults filled in)."""
+    from pipelines.regress.manifest import Simulate
+    from pipelines.regress.runner import sim_folder
+
+    return sim_folder(Path(), Simulate.model_validate(spec)).name
 
 
-KNOWN = frozenset(spec_key(s) for s in SIM_LOGS)
+@functools.cache
+def known() -> frozenset[str]:
+    """The cache names of SIM_LOGS."""
+    return frozenset(cache_name(s) for s in SIM_LOGS)
 
 
 def ensure(spec: dict[str, Any]) -> tuple[str, float | None]:
